@@ -1,0 +1,57 @@
+# Everything a fresh Debian 12 machine (root, apt reachable) needs: `make demo`, `make test`.
+SHELL := /bin/bash
+# Debian's python3 (the one with rospy) must win over any other python3 on PATH.
+export PATH := /usr/bin:/bin:/usr/sbin:/sbin:$(PATH)
+export DEBIAN_FRONTEND := noninteractive
+
+# The catkin workspace lives outside the clone: a workspace inside the package it builds
+# would contain itself (src/multi_map_merge -> the clone -> .ws/src/...).
+WS      ?= /tmp/multi_map_merge_ws_$(shell echo '$(CURDIR)' | md5sum | cut -c1-8)
+SETUP   := $(WS)/devel/setup.bash
+APT_PKGS := python3-rospy python3-tf2-ros python3-nav-msgs python3-rostest python3-rosbag \
+  python3-roslaunch python3-rostopic python3-map-msgs python3-diagnostic-msgs python3-std-srvs \
+  python3-geometry-msgs python3-sensor-msgs python3-catkin-pkg python3-setuptools \
+  catkin ros-core-dev g++ python3-opencv python3-numpy python3-scipy python3-yaml \
+  python3-pytest python3-matplotlib
+ROS_ENV := source $(SETUP) && export ROS_HOME=$(WS)/ros_home ROS_LOG_DIR=$(WS)/ros_home/log
+
+.PHONY: deps build test unit rostest demo clean
+
+deps: $(WS)/.deps-ok
+$(WS)/.deps-ok:
+	@mkdir -p $(WS)
+	@missing=$$(for p in $(APT_PKGS); do dpkg-query -W -f='$${Status}\n' $$p 2>/dev/null | grep -q 'install ok installed' || echo $$p; done); \
+	if [ -n "$$missing" ]; then \
+	  echo "installing:" $$missing; \
+	  apt-get update -q >/dev/null && apt-get install -y -q --no-install-recommends $$missing >/dev/null || exit 1; \
+	fi
+	@touch $@
+
+build: deps
+	@mkdir -p $(WS)/src
+	@ln -sfn $(CURDIR) $(WS)/src/multi_map_merge
+	@cd $(WS) && catkin_make -DPYTHON_EXECUTABLE=/usr/bin/python3 >$(WS)/build.log 2>&1 \
+	  || { tail -40 $(WS)/build.log; exit 1; }
+	@echo "built: $(WS)"
+
+unit: build
+	@$(ROS_ENV) && cd $(CURDIR) && python3 -m pytest -q test/unit
+
+rostest: build
+	@$(ROS_ENV) && rc=0; for t in test/*.test; do \
+	  echo "== rostest $$t"; rostest --text multi_map_merge $$(basename $$t) 2>&1 | tail -n 25; \
+	  [ $${PIPESTATUS[0]} -eq 0 ] || rc=1; done; exit $$rc
+
+test: build
+	@$(ROS_ENV) && cd $(CURDIR) && rc=0; \
+	python3 -m pytest -q test/unit || rc=1; \
+	for t in test/*.test; do \
+	  echo "== rostest $$t"; rostest --text multi_map_merge $$(basename $$t) > $(WS)/rostest.log 2>&1; r=$$?; \
+	  sed -n '/SUMMARY/,$$p' $(WS)/rostest.log; [ $$r -eq 0 ] || { rc=1; tail -60 $(WS)/rostest.log; }; done; \
+	exit $$rc
+
+demo: build
+	@$(ROS_ENV) && cd $(CURDIR) && scripts/run_demo
+
+clean:
+	rm -rf $(WS) demo_output

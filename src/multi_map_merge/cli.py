@@ -1,0 +1,102 @@
+"""``merge_maps``: merge saved map_server maps offline with the same core as the node.
+
+    merge_maps A.yaml B.yaml ... -o merged.yaml [--transforms T.yaml] [--reference A]
+              [--config map_merge.yaml]
+
+Exit status: 0 merged (even if some maps could not be placed: they are listed with
+``merged: false``), 2 bad arguments or a bad input file (the message names it).
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+from typing import Dict, List, Optional
+
+import yaml
+
+from .config import MergeConfig
+from .mapio import MapFileError, load_map, save_map
+from .merger import MapMerger
+from .transforms import xyyaw
+
+
+def transforms_report(merger: MapMerger, reference: str, names: List[str]) -> Dict:
+    """The ``--transforms`` document: pose of every map frame in the merged (reference) frame."""
+    placements = merger.placements()
+    status = merger.status()
+    maps: Dict[str, Dict] = {}
+    for n in names:
+        if n == reference:
+            continue
+        pl = placements.get(n)
+        if pl is None:
+            st = status.get(n)
+            why = st.last_attempt.reason if st and st.last_attempt else 'no estimate'
+            maps[n] = {'merged': False, 'reason': why}
+            continue
+        x, y, yaw = xyyaw(pl.T)
+        maps[n] = {'merged': True, 'x': round(x, 6), 'y': round(y, 6), 'yaw': round(yaw, 6),
+                   'reliability': round(float(pl.reliability), 4), 'inliers': int(pl.inliers),
+                   'agreement': round(float(pl.agreement), 4), 'via': pl.via}
+    return {'reference': reference, 'maps': maps}
+
+
+def main(argv: Optional[List[str]] = None) -> int:
+    ap = argparse.ArgumentParser(prog='merge_maps', description=__doc__.split('\n\n')[0])
+    ap.add_argument('maps', nargs='+', help='map_server .yaml files, one per robot')
+    ap.add_argument('-o', '--output', required=True, help='merged map .yaml to write (+ .pgm)')
+    ap.add_argument('--transforms', help='write each map frame\'s pose in the merged frame here')
+    ap.add_argument('--reference', help='file stem of the reference map (default: the first map)')
+    ap.add_argument('--config', help='YAML of merger parameters (config/map_merge.yaml keys)')
+    a = ap.parse_args(argv)
+
+    cfg_dict = {}
+    if a.config:
+        try:
+            with open(a.config) as f:
+                cfg_dict = yaml.safe_load(f) or {}
+        except (OSError, yaml.YAMLError) as e:
+            print('merge_maps: %s: cannot read config: %s' % (a.config, e), file=sys.stderr)
+            return 2
+    names: List[str] = []
+    grids = []
+    for p in a.maps:
+        stem = os.path.splitext(os.path.basename(p))[0]
+        if stem in names:
+            print('merge_maps: %s: two maps named %r (file stems must differ)' % (p, stem), file=sys.stderr)
+            return 2
+        try:
+            grids.append(load_map(p))
+        except MapFileError as e:
+            print('merge_maps: %s' % e, file=sys.stderr)
+            return 2
+        names.append(stem)
+    reference = a.reference or names[0]
+    if reference not in names:
+        print('merge_maps: --reference %s is not one of the maps (%s)' % (reference, ', '.join(names)),
+              file=sys.stderr)
+        return 2
+    cfg_dict['reference_robot'] = reference
+    merger = MapMerger(MergeConfig.from_dict(cfg_dict))
+    for n, g in zip(names, grids):
+        merger.update_map(n, g)
+    merger.estimate()
+    merged = merger.compose()
+    save_map(merged, a.output)
+    report = transforms_report(merger, reference, names)
+    if a.transforms:
+        with open(a.transforms, 'w') as f:
+            yaml.safe_dump(report, f, sort_keys=False)
+    print('reference: %s' % reference)
+    for n, r in report['maps'].items():
+        if r['merged']:
+            print('  %-30s merged   x=%8.3f m  y=%8.3f m  yaw=%8.2f deg  inlier ratio %.3f  '
+                  'inliers %d  agreement %.3f  via %s' % (n, r['x'], r['y'], math.degrees(r['yaw']),
+                                                          r['reliability'], r['inliers'],
+                                                          r['agreement'], r['via']))
+        else:
+            print('  %-30s NOT merged: %s' % (n, r['reason']))
+    print('merged map: %s (%dx%d cells, %.3f m)' % (a.output, merged.width, merged.height, merged.resolution))
+    return 0

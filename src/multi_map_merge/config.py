@@ -1,0 +1,69 @@
+"""One typed configuration for the whole merger; ``config/map_merge.yaml`` holds the same
+defaults for ROS users (a unit test keeps the two equal)."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields, asdict
+from typing import Any, Dict, List
+
+
+@dataclass
+class MergeConfig:
+    # --- which maps (node only) ---
+    robot_namespace_pattern: str = 'tb3_*'   # fnmatch pattern of <robot> in /<robot>/map topics
+    robots: List[str] = field(default_factory=list)  # explicit robot namespaces; empty = discover
+    map_topic: str = 'map'                   # per-robot topic name under its namespace
+    reference_robot: str = ''                # '' = the first robot in name order (robot 1)
+    merged_map_frame: str = 'map'            # frame of the merged map and parent of every TF
+    # --- rates (node only), Hz ---
+    estimation_rate: float = 0.5
+    merge_rate: float = 2.0
+    discovery_rate: float = 0.5
+    tf_rate: float = 20.0
+    # --- grid -> image ---
+    free_thresh: float = 19.6                # percent: 0..free_thresh is free
+    occupied_thresh: float = 65.0            # percent: >= occupied_thresh is occupied
+    max_cells: int = 25_000_000              # a grid larger than this is rejected
+    # --- features and matching ---
+    akaze_threshold: float = 0.001
+    upscale_below_cells: int = 250_000       # describe smaller known areas at 2x size
+    match_candidates: int = 2                # nearest neighbours kept per feature
+    match_ratio: float = 0.8                 # Lowe's ratio, only to score reliability
+    # --- RANSAC and reliability ---
+    ransac_threshold: float = 3.0            # cells
+    ransac_iterations: int = 3000
+    ransac_hypotheses: int = 8               # distinct transforms verified per pair
+    min_matches: int = 10
+    min_inliers: int = 10
+    min_reliability: float = 0.0             # inlier ratio below this is never used
+    replace_margin: float = 0.02             # a new transform must beat the kept one by this
+    # --- verification on the grids (beyond the paper) ---
+    refine: bool = True                      # ICP of wall cells after RANSAC
+    min_agreement: float = 0.8               # wall agreement 0..1 in the overlap
+    min_overlap_cells: int = 400
+    agreement_tolerance: int = 2             # cells
+    # --- persistence (node only) ---
+    transforms_file: str = ''                # '' = do not persist
+
+    @classmethod
+    def from_dict(cls, d: Dict[str, Any]) -> 'MergeConfig':
+        """Build from a mapping, ignoring unknown keys; values are converted to each field's type."""
+        kw = {}
+        for f in fields(cls):
+            if f.name in d and d[f.name] is not None:
+                default = getattr(cls(), f.name)
+                v = d[f.name]
+                if isinstance(default, bool):
+                    v = bool(v)
+                elif isinstance(default, int):
+                    v = int(v)
+                elif isinstance(default, float):
+                    v = float(v)
+                elif isinstance(default, list):
+                    v = [str(x) for x in (v if isinstance(v, (list, tuple)) else str(v).split())]
+                else:
+                    v = str(v)
+                kw[f.name] = v
+        return cls(**kw)
+
+    def to_dict(self) -> Dict[str, Any]:
+        return asdict(self)

@@ -1,0 +1,178 @@
+"""Occupancy grids as numpy arrays, and their image form.
+
+A :class:`Grid` keeps the cells in OccupancyGrid order: ``data[row, col]`` with row 0 at the
+grid's origin (lowest y in the map frame) and columns along +x. We never flip rows inside the
+pipeline: feature detection, estimation and compositing all work in this order, so a cell index
+maps to metres by a proper rotation (determinant +1) and a rigid image transform is a rigid
+metric one. The only row flip is at the edge, when a map_server ``.pgm`` (row 0 = top) is read
+or written, and when a picture is drawn for people (see :mod:`multi_map_merge.mapio`).
+
+Cell values follow nav_msgs/OccupancyGrid: -1 unknown, 0..100 occupancy probability in percent.
+They are classified with two thresholds (percent, as in map_server's ``free_thresh`` and
+``occupied_thresh``, default 19.6 and 65):
+
+- ``v < 0``                   -> UNKNOWN
+- ``0 <= v <= free_thresh``   -> FREE
+- ``v >= occupied_thresh``    -> OCCUPIED
+- anything in between         -> UNKNOWN (gmapping's "not sure yet": better not to match on it)
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Optional, Tuple
+
+import numpy as np
+
+# Levels, ordered by compositing priority: Occupied > Free > Unknown, so np.maximum merges.
+UNKNOWN = 0
+FREE = 1
+OCCUPIED = 2
+
+# Image form for features (the paper: occupied black, free white, unknown gray).
+IMAGE_VALUES = np.array([127, 255, 0], dtype=np.uint8)  # indexed by level
+
+DEFAULT_FREE_THRESH = 19.6   # percent
+DEFAULT_OCC_THRESH = 65.0    # percent
+
+
+class GridError(ValueError):
+    """A grid that cannot be used; the message says why."""
+
+
+@dataclass
+class Grid:
+    """One occupancy grid.
+
+    Attributes:
+        data: int8 array (height, width), OccupancyGrid values (-1, 0..100), row 0 at the origin.
+        resolution: metres per cell.
+        origin: (x, y, yaw) of cell (0, 0)'s outer corner in ``frame_id``; metres, radians.
+        frame_id: the frame the grid is expressed in, e.g. ``tb3_1/map``.
+        stamp: seconds (the message stamp), informational.
+    """
+
+    data: np.ndarray
+    resolution: float
+    origin: Tuple[float, float, float] = (0.0, 0.0, 0.0)
+    frame_id: str = ''
+    stamp: float = 0.0
+    _levels: Optional[np.ndarray] = field(default=None, repr=False, compare=False)
+
+    @property
+    def height(self) -> int:
+        return int(self.data.shape[0])
+
+    @property
+    def width(self) -> int:
+        return int(self.data.shape[1])
+
+    def levels(self, free_thresh: float = DEFAULT_FREE_THRESH,
+               occ_thresh: float = DEFAULT_OCC_THRESH) -> np.ndarray:
+        """uint8 array of UNKNOWN/FREE/OCCUPIED per cell (cached for the default thresholds)."""
+        default = free_thresh == DEFAULT_FREE_THRESH and occ_thresh == DEFAULT_OCC_THRESH
+        if default and self._levels is not None:
+            return self._levels
+        lv = classify(self.data, free_thresh, occ_thresh)
+        if default:
+            self._levels = lv
+        return lv
+
+
+def classify(data: np.ndarray, free_thresh: float = DEFAULT_FREE_THRESH,
+             occ_thresh: float = DEFAULT_OCC_THRESH) -> np.ndarray:
+    """OccupancyGrid values -> levels (see module docstring for the thresholds)."""
+    d = data.astype(np.int16, copy=False)
+    lv = np.zeros(d.shape, np.uint8)
+    lv[(d >= 0) & (d <= free_thresh)] = FREE
+    lv[d >= occ_thresh] = OCCUPIED
+    return lv
+
+
+def levels_to_values(levels: np.ndarray) -> np.ndarray:
+    """Levels -> OccupancyGrid int8 values: -1 unknown, 0 free, 100 occupied."""
+    lut = np.array([-1, 0, 100], dtype=np.int8)
+    return lut[levels]
+
+
+def to_image(levels: np.ndarray) -> np.ndarray:
+    """Levels -> uint8 image for feature detection: occupied 0, free 255, unknown 127."""
+    return IMAGE_VALUES[levels]
+
+
+def known_bbox(levels: np.ndarray, margin: int = 0) -> Optional[Tuple[int, int, int, int]]:
+    """(row0, row1, col0, col1), half-open, of the known cells grown by ``margin`` cells;
+    None when nothing is known. gmapping publishes a big canvas that is mostly unknown, and
+    the cost of features grows with the image, so work happens inside this box."""
+    rows = np.flatnonzero(levels.any(axis=1))
+    if rows.size == 0:
+        return None
+    cols = np.flatnonzero(levels.any(axis=0))
+    h, w = levels.shape
+    return (max(0, int(rows[0]) - margin), min(h, int(rows[-1]) + 1 + margin),
+            max(0, int(cols[0]) - margin), min(w, int(cols[-1]) + 1 + margin))
+
+
+def validate(data: np.ndarray, width: int, height: int, resolution: float,
+             origin: Tuple[float, float, float], max_cells: int) -> None:
+    """Raise GridError with the reason when a grid cannot be merged.
+
+    Args:
+        data: the flat or 2-D cell array as received.
+        width, height: cells, as the message declares them.
+        resolution: metres per cell.
+        origin: (x, y, yaw) metres, radians.
+        max_cells: upper bound on width*height (memory guard against absurd sizes).
+    """
+    if width <= 0 or height <= 0:
+        raise GridError('empty grid: width=%d height=%d' % (width, height))
+    if width * height > max_cells:
+        raise GridError('grid too large: %dx%d = %d cells > max_cells %d'
+                        % (width, height, width * height, max_cells))
+    if data.size != width * height:
+        raise GridError('data length %d != width*height = %d*%d = %d'
+                        % (data.size, width, height, width * height))
+    if not (isinstance(resolution, (int, float)) and math.isfinite(resolution) and resolution > 0):
+        raise GridError('resolution must be a positive finite number of metres, got %r' % (resolution,))
+    if not all(math.isfinite(float(v)) for v in origin):
+        raise GridError('origin is not finite: %r' % (tuple(origin),))
+    if data.size:
+        d = data.astype(np.int16, copy=False)
+        lo, hi = int(d.min()), int(d.max())
+        if lo < -1 or hi > 100:
+            raise GridError('cell values outside -1..100 (min %d, max %d)' % (lo, hi))
+
+
+def make_grid(data, width: int, height: int, resolution: float,
+              origin: Tuple[float, float, float], frame_id: str = '', stamp: float = 0.0,
+              max_cells: int = 25_000_000) -> Grid:
+    """Validate and build a Grid from OccupancyGrid fields (data flat, row-major)."""
+    arr = np.asarray(data)
+    if arr.dtype != np.int8:
+        arr = arr.astype(np.int16)
+    validate(arr, int(width), int(height), float(resolution), tuple(origin), max_cells)
+    arr = arr.astype(np.int8, copy=False).reshape(int(height), int(width))
+    return Grid(arr, float(resolution), tuple(float(v) for v in origin), frame_id, stamp)
+
+
+def rescale(grid: Grid, resolution: float) -> Grid:
+    """Resample ``grid`` to ``resolution`` metres per cell (same frame and origin corner).
+
+    Downsampling keeps the highest-priority level in each block (a wall never disappears);
+    upsampling repeats cells. Maps of a different resolution are rescaled, not rejected."""
+    if abs(grid.resolution - resolution) < 1e-9:
+        return grid
+    f = grid.resolution / resolution          # new cells per old cell
+    h = max(1, int(round(grid.height * f)))
+    w = max(1, int(round(grid.width * f)))
+    lv = grid.levels()
+    # index of the source cell covering each target cell (nearest), then max-pool on shrink
+    rows = np.minimum((np.arange(h) + 0.5) / f, grid.height - 1e-6).astype(int)
+    cols = np.minimum((np.arange(w) + 0.5) / f, grid.width - 1e-6).astype(int)
+    out = lv[rows][:, cols]
+    if f < 1:
+        import cv2
+        k = int(math.ceil(1 / f))
+        dil = cv2.dilate(lv, np.ones((k, k), np.uint8), anchor=(0, 0))
+        out = dil[rows][:, cols]
+    return Grid(levels_to_values(out), float(resolution), grid.origin, grid.frame_id, grid.stamp)

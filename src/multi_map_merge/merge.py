@@ -1,0 +1,103 @@
+"""Step 5 of the paper: warp every placed map into the merged frame and composite them.
+
+The merged canvas is axis-aligned in the merged frame on the reference map's cell lattice, so
+the reference is copied without resampling. It grows to cover every merged map (not only the
+reference). Where maps overlap, Occupied > Free > Unknown: the levels are ordered so that this
+is an element-wise maximum.
+
+Each map is warped into a *patch* of the lattice covering its known cells only, and the patch
+is cached: a robot whose map and pose did not change is not warped again.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Dict, Optional, Tuple
+
+import cv2
+import numpy as np
+
+from .grid import Grid, known_bbox, levels_to_values
+from .transforms import cell_to_metric, apply
+
+
+@dataclass
+class Patch:
+    """A map warped onto the merged lattice: levels[j, i] is lattice cell (i0 + i, j0 + j)."""
+
+    i0: int
+    j0: int
+    levels: np.ndarray
+
+
+@dataclass
+class Lattice:
+    """Cells of the merged canvas: cell (i, j) has its centre at
+    ``(x0 + (i + 0.5) * res, y0 + (j + 0.5) * res)`` metres in the merged frame."""
+
+    resolution: float
+    x0: float
+    y0: float
+
+    def key(self) -> Tuple[float, float, float]:
+        return (self.resolution, self.x0, self.y0)
+
+
+def lattice_for(reference: Grid) -> Lattice:
+    """The lattice of the reference map's cells (exact when its origin has no yaw)."""
+    ox, oy, _ = reference.origin
+    return Lattice(reference.resolution, ox, oy)
+
+
+def warp_patch(levels: np.ndarray, resolution: float, origin, T_merged_k: np.ndarray,
+               lattice: Lattice, max_cells: int) -> Optional[Patch]:
+    """Warp one map's levels (grid resolution ``resolution``, ``origin`` in its frame k) by the
+    pose ``T_merged_k`` (metres, frame k -> merged frame) onto ``lattice``.
+
+    Returns None when the map has no known cell or the patch would exceed ``max_cells``."""
+    box = known_bbox(levels, 1)
+    if box is None:
+        return None
+    r0, r1, c0, c1 = box
+    W_k = cell_to_metric(resolution, origin)
+    corners = np.array([[c0 - 0.5, r0 - 0.5], [c1 - 0.5, r0 - 0.5],
+                        [c0 - 0.5, r1 - 0.5], [c1 - 0.5, r1 - 0.5]], np.float64)
+    m = apply(T_merged_k @ W_k, corners)
+    res = lattice.resolution
+    i0 = int(math.floor((m[:, 0].min() - lattice.x0) / res))
+    i1 = int(math.ceil((m[:, 0].max() - lattice.x0) / res))
+    j0 = int(math.floor((m[:, 1].min() - lattice.y0) / res))
+    j1 = int(math.ceil((m[:, 1].max() - lattice.y0) / res))
+    w, h = i1 - i0, j1 - j0
+    if w <= 0 or h <= 0 or w * h > max_cells:
+        return None
+    W_patch = cell_to_metric(res, (lattice.x0 + i0 * res, lattice.y0 + j0 * res, 0.0))
+    M = np.linalg.inv(W_k) @ np.linalg.inv(T_merged_k) @ W_patch   # patch cells -> cells of k
+    sub = np.ascontiguousarray(levels[r0:r1, c0:c1])
+    M = np.array([[1, 0, -c0], [0, 1, -r0], [0, 0, 1.0]]) @ M
+    out = cv2.warpAffine(sub, M[:2], (w, h), flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP,
+                         borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    return Patch(i0, j0, out)
+
+
+def composite(patches, lattice: Lattice, frame_id: str, max_cells: int) -> Optional[Grid]:
+    """Element-wise maximum of the patches on one canvas covering all of them.
+
+    Returns the merged Grid (OccupancyGrid values -1/0/100) or None without patches."""
+    patches = [p for p in patches if p is not None]
+    if not patches:
+        return None
+    i0 = min(p.i0 for p in patches)
+    j0 = min(p.j0 for p in patches)
+    i1 = max(p.i0 + p.levels.shape[1] for p in patches)
+    j1 = max(p.j0 + p.levels.shape[0] for p in patches)
+    if (i1 - i0) * (j1 - j0) > max_cells:
+        raise ValueError('merged canvas %dx%d exceeds max_cells %d' % (i1 - i0, j1 - j0, max_cells))
+    canvas = np.zeros((j1 - j0, i1 - i0), np.uint8)
+    for p in patches:
+        h, w = p.levels.shape
+        view = canvas[p.j0 - j0:p.j0 - j0 + h, p.i0 - i0:p.i0 - i0 + w]
+        np.maximum(view, p.levels, out=view)
+    res = lattice.resolution
+    origin = (lattice.x0 + i0 * res, lattice.y0 + j0 * res, 0.0)
+    return Grid(levels_to_values(canvas), res, origin, frame_id, 0.0, _levels=canvas)

@@ -1,0 +1,384 @@
+"""The merger: the paper's flowchart as one class (no ROS in here).
+
+    maps --(1) image + AKAZE--> features --(2) match pairs--> matches --(3) rigid RANSAC-->
+    transform + inlier ratio --(4) verify, keep the most reliable--> placements
+    --(5) warp + composite--> merged grid, --(6) poses--> TF of every robot's map frame
+
+Frames: the merged frame is the reference robot's map frame (the paper's Map 1). A robot's
+*placement* is the pose ``T_merged_k`` of its map frame in the merged frame (metres, radians).
+It is expressed between frames, not grids, so it stays valid while gmapping grows the grid.
+
+Thread safety: ``update_map`` / ``remove_robot`` may be called from any thread while
+``estimate`` runs in another and ``compose`` in a third; each takes a snapshot under a lock
+and computes outside it.
+"""
+from __future__ import annotations
+
+import math
+import threading
+import time
+import zlib
+from dataclasses import dataclass, field
+from typing import Dict, List, Optional, Tuple
+
+import numpy as np
+
+from . import estimate as est
+from .config import MergeConfig
+from .features import FeatureExtractor, Features
+from .grid import Grid, rescale
+from .merge import Lattice, Patch, composite, lattice_for, warp_patch
+from .refine import WallField, occupied_points, refine
+from .transforms import image_to_pose, pose_to_image, xyyaw
+
+
+@dataclass
+class RobotMap:
+    """The latest grid of one robot. ``grid`` is at the merger's working resolution (the
+    reference's): a map of another resolution is rescaled, not rejected."""
+
+    name: str
+    raw: Grid           # as received
+    version: int
+    received: float     # seconds (time.time()) when it arrived
+    grid: Grid = None   # type: ignore[assignment]  # working-resolution grid, set by _working
+
+    def at(self, resolution: float) -> 'RobotMap':
+        if self.grid is None or abs(self.grid.resolution - resolution) > 1e-9:
+            self.grid = rescale(self.raw, resolution)
+        return self
+
+
+@dataclass
+class Edge:
+    """A verified transform between two robots' map frames: ``T`` maps metres in ``child``'s
+    frame to metres in ``parent``'s frame."""
+
+    parent: str
+    child: str
+    T: np.ndarray
+    reliability: float
+    agreement: float
+    inliers: int
+    matches: int
+    stamp: float
+
+    def towards(self, parent: str) -> np.ndarray:
+        """Pose of the other robot's frame in ``parent``'s frame."""
+        return self.T if parent == self.parent else np.linalg.inv(self.T)
+
+
+@dataclass
+class Placement:
+    """Where a robot's map frame sits in the merged frame, and how well we know it."""
+
+    T: np.ndarray                 # 3x3 pose of the robot's map frame in the merged frame
+    reliability: float            # weakest inlier ratio along the chain (1.0 for the reference)
+    agreement: float              # weakest verification score along the chain
+    inliers: int                  # fewest inliers along the chain
+    via: str                      # the robot it is linked through ('' for the reference)
+    path: Tuple[str, ...]         # reference ... robot
+    stamp: float                  # seconds when this placement was adopted
+
+
+@dataclass
+class RobotStatus:
+    """What diagnostics show for one robot."""
+
+    merged: bool
+    reference: bool
+    placement: Optional[Placement]
+    last_attempt: Optional[est.PairEstimate] = None
+    last_attempt_with: str = ''
+    error: str = ''
+
+
+class MapMerger:
+    """Merges N robots' occupancy grids into one (see module docstring)."""
+
+    def __init__(self, config: Optional[MergeConfig] = None):
+        self.config = config or MergeConfig()
+        c = self.config
+        self._extract = FeatureExtractor(c.akaze_threshold, c.upscale_below_cells)
+        self._lock = threading.Lock()
+        self._maps: Dict[str, RobotMap] = {}
+        self._version = 0
+        self._reference: str = c.reference_robot
+        self._features: Dict[str, Tuple[tuple, Features]] = {}
+        self._walls: Dict[str, Tuple[tuple, WallField, np.ndarray]] = {}
+        self._edges: Dict[Tuple[str, str], Edge] = {}
+        self._tried: Dict[Tuple[str, str], Tuple[int, int]] = {}
+        self._attempts: Dict[Tuple[str, str], est.PairEstimate] = {}
+        self._placements: Dict[str, Placement] = {}
+        self._patches: Dict[str, Tuple[tuple, Optional[Patch]]] = {}
+        self._errors: Dict[str, str] = {}
+
+    # ------------------------------------------------------------------ inputs
+    @property
+    def reference(self) -> str:
+        """The reference robot: ``reference_robot`` or, if empty, the first robot by name."""
+        with self._lock:
+            return self._reference_locked()
+
+    def _reference_locked(self) -> str:
+        if not self._reference and self._maps:
+            self._reference = sorted(self._maps)[0]
+        return self._reference
+
+    def update_map(self, name: str, grid: Grid) -> None:
+        """Take a robot's new grid (already validated, see :func:`grid.make_grid`)."""
+        with self._lock:
+            self._version += 1
+            self._maps[name] = RobotMap(name, grid, self._version, time.time())
+            self._errors.pop(name, None)
+
+    def report_error(self, name: str, reason: str) -> None:
+        """Remember why a robot's last input was refused (shown in status)."""
+        with self._lock:
+            self._errors[name] = reason
+
+    def remove_robot(self, name: str) -> None:
+        """Forget a robot that vanished: its map leaves the merge, its links are dropped."""
+        with self._lock:
+            self._maps.pop(name, None)
+            self._placements.pop(name, None)
+            self._patches.pop(name, None)
+            for k in [k for k in self._edges if name in k]:
+                del self._edges[k]
+
+    def reset(self) -> None:
+        """Forget every transform (maps are kept)."""
+        with self._lock:
+            self._edges.clear()
+            self._tried.clear()
+            self._attempts.clear()
+            self._placements.clear()
+            self._patches.clear()
+
+    def _snapshot(self) -> Tuple[str, Dict[str, RobotMap]]:
+        """(reference, maps at the reference's resolution); maps empty before the reference
+        has a map (nothing can be placed without it)."""
+        with self._lock:
+            ref = self._reference_locked()
+            maps = dict(self._maps)
+        if ref not in maps:
+            return ref, {}
+        res = maps[ref].raw.resolution
+        return ref, {n: m.at(res) for n, m in maps.items()}
+
+    # ------------------------------------------------------------------ the algorithm
+    def estimate(self) -> List[str]:
+        """One estimation cycle; returns human-readable events (merges, improvements)."""
+        ref, maps = self._snapshot()
+        if not maps:
+            return []
+        for m in maps.values():
+            # (1) grid -> image -> AKAZE features, only for maps that changed
+            self._features_of(m)
+        for a, b in self._pairs(maps, ref):
+            # (2) match, (3) rigid RANSAC + inlier ratio, (4) verify on the grids
+            self._estimate_pair(maps[a], maps[b])
+        # (4) per robot keep the most reliable placement; (6) it gives the robot's TF
+        return self._place(maps, ref)
+
+    def compose(self) -> Optional[Grid]:
+        """(5) Warp every placed map into the merged frame and composite; None before any map
+        of the reference arrived."""
+        ref, maps = self._snapshot()
+        with self._lock:
+            placements = dict(self._placements)
+        if not maps:
+            return None
+        lattice = lattice_for(maps[ref].grid)
+        patches = []
+        for name, pl in sorted(placements.items()):
+            m = maps.get(name)
+            if m is not None:
+                patches.append(self._patch(m, pl.T, lattice))
+        return composite(patches, lattice, self.config.merged_map_frame, self.config.max_cells)
+
+    def placements(self) -> Dict[str, Placement]:
+        """Placement of every merged robot (the reference included, at identity)."""
+        with self._lock:
+            return dict(self._placements)
+
+    def frames(self) -> Dict[str, str]:
+        """Map frame id of every robot (from its grid's header)."""
+        with self._lock:
+            return {n: (m.raw.frame_id or n + '/map') for n, m in self._maps.items()}
+
+    def status(self) -> Dict[str, RobotStatus]:
+        """Per robot: merged or not, placement, last pair attempt, last input error."""
+        with self._lock:
+            ref = self._reference_locked()
+            out = {}
+            for n in sorted(set(self._maps) | set(self._errors)):
+                last, other = None, ''
+                for (a, b), e in self._attempts.items():
+                    if n in (a, b) and (last is None or e.extra.get('t', 0) > last.extra.get('t', 0)):
+                        last, other = e, (b if a == n else a)
+                pl = self._placements.get(n)
+                out[n] = RobotStatus(pl is not None, n == ref, pl, last, other, self._errors.get(n, ''))
+            return out
+
+    # ------------------------------------------------------------------ steps
+    def _features_of(self, m: RobotMap) -> Features:
+        c = self.config
+        cached = self._features.get(m.name)
+        if cached is None or cached[0] != (m.version, m.grid.resolution):
+            lv = m.grid.levels(c.free_thresh, c.occupied_thresh)
+            self._features[m.name] = ((m.version, m.grid.resolution), self._extract(lv))
+        return self._features[m.name][1]
+
+    def _walls_of(self, m: RobotMap) -> Tuple[WallField, np.ndarray]:
+        c = self.config
+        cached = self._walls.get(m.name)
+        if cached is None or cached[0] != (m.version, m.grid.resolution):
+            lv = m.grid.levels(c.free_thresh, c.occupied_thresh)
+            self._walls[m.name] = ((m.version, m.grid.resolution), WallField(lv), occupied_points(lv))
+        return self._walls[m.name][1], self._walls[m.name][2]
+
+    def _pairs(self, maps: Dict[str, RobotMap], ref: str) -> List[Tuple[str, str]]:
+        """Pairs (parent, child) whose maps changed since they were last tried: every pair of
+        robots (so a robot that misses the reference can chain through another)."""
+        names = sorted(maps)
+        out = []
+        for i, a in enumerate(names):
+            for b in names[i + 1:]:
+                pa, ch = (a, b) if b != ref else (b, a)
+                key = (pa, ch)
+                if self._tried.get(key) != (maps[pa].version, maps[ch].version):
+                    out.append(key)
+        return out
+
+    def _estimate_pair(self, pa: RobotMap, ch: RobotMap) -> None:
+        """Estimate the transform of ``ch``'s map into ``pa``'s and keep it if it is verified
+        and more reliable than the one kept for this pair."""
+        c = self.config
+        key = (pa.name, ch.name)
+        self._tried[key] = (pa.version, ch.version)
+        r = self.estimate_grids(pa, ch, seed=zlib.crc32(('%s|%s' % key).encode()))
+        r.extra['t'] = time.time()
+        with self._lock:
+            self._attempts[key] = r
+            if not r.accepted:
+                return
+            T = image_to_pose(r.A, pa.grid.resolution, pa.grid.origin, ch.grid.resolution, ch.grid.origin)
+            old = self._edges.get(key)
+            if old is None or r.reliability > old.reliability + c.replace_margin:
+                self._edges[key] = Edge(pa.name, ch.name, T, r.reliability, r.agreement,
+                                        r.inliers, r.matches, time.time())
+
+    def estimate_grids(self, pa: RobotMap, ch: RobotMap, seed: int = 0) -> est.PairEstimate:
+        """Steps (2)-(4) for one pair: cells of ``ch`` -> cells of ``pa``, verified."""
+        c = self.config
+        fa, fb = self._features_of(pa), self._features_of(ch)
+        src, dst, unique = est.match(fb, fa, c.match_candidates, c.match_ratio)
+        r = est.PairEstimate(None, matches=int(unique.sum()))
+        if src.shape[0] < c.min_matches:
+            r.reason = 'too few matches (%d < %d)' % (src.shape[0], c.min_matches)
+            return r
+        hyps = est.ransac_rigid(src, dst, c.ransac_threshold, c.ransac_iterations, seed,
+                                c.ransac_hypotheses)
+        lv_a = pa.grid.levels(c.free_thresh, c.occupied_thresh)
+        lv_b = ch.grid.levels(c.free_thresh, c.occupied_thresh)
+        best: Optional[est.PairEstimate] = None
+        for A, mask in hyps:
+            h = est.PairEstimate(A, matches=r.matches, inliers=int(mask.sum()))
+            if h.inliers < c.min_inliers:
+                h.reason = 'too few inliers (%d < %d)' % (h.inliers, c.min_inliers)
+            else:
+                if c.refine:
+                    h.A = self._refined(pa, ch, A)
+                th2 = c.ransac_threshold ** 2
+                good_inl = int(est._inliers(h.A, src[unique], dst[unique], th2).sum()) if r.matches else 0
+                h.reliability = good_inl / float(max(1, r.matches))
+                h.agreement, h.overlap = est.agreement(lv_a, lv_b, h.A, c.agreement_tolerance)
+                if h.overlap < c.min_overlap_cells:
+                    h.reason = 'overlap %d cells < %d' % (h.overlap, c.min_overlap_cells)
+                elif h.agreement < c.min_agreement:
+                    h.reason = 'grids disagree: agreement %.2f < %.2f' % (h.agreement, c.min_agreement)
+                elif h.reliability < c.min_reliability:
+                    h.reason = 'inlier ratio %.3f < %.3f' % (h.reliability, c.min_reliability)
+                else:
+                    h.accepted = True
+            # The grids decide between hypotheses: the best-agreeing accepted one wins.
+            if best is None or (h.accepted, h.agreement, h.inliers) > (best.accepted, best.agreement, best.inliers):
+                best = h
+        if best is None:
+            r.reason = 'RANSAC found no consistent transform'
+            return r
+        return best
+
+    def _refined(self, pa: RobotMap, ch: RobotMap, A: np.ndarray) -> np.ndarray:
+        c = self.config
+        field_a, _ = self._walls_of(pa)
+        _, pts_b = self._walls_of(ch)
+        A2 = refine(field_a, pts_b, A, max_distance=c.ransac_threshold)
+        if A2 is None:
+            return A
+        # ICP may only polish what RANSAC found, never move it somewhere else.
+        d = np.hypot(*(A2[:2, 2] - A[:2, 2]))
+        da = abs(math.atan2(A2[1, 0], A2[0, 0]) - math.atan2(A[1, 0], A[0, 0]))
+        return A2 if d <= 3 * c.ransac_threshold and da <= math.radians(5) else A
+
+    def _place(self, maps: Dict[str, RobotMap], ref: str) -> List[str]:
+        """Chain every robot to the reference through its most reliable links (the path whose
+        weakest link has the highest inlier ratio) and keep, per robot, the best placement seen."""
+        c = self.config
+        events: List[str] = []
+        with self._lock:
+            edges = dict(self._edges)
+            old = dict(self._placements)
+        best: Dict[str, Placement] = {
+            ref: Placement(np.eye(3), 1.0, 1.0, 0, '', (ref,), time.time())}
+        frontier = [ref]
+        # Widest-path (maximin) search from the reference; N is small, so a simple loop does.
+        while frontier:
+            frontier.sort(key=lambda n: best[n].reliability)
+            u = frontier.pop()
+            for (a, b), e in edges.items():
+                if u not in (a, b):
+                    continue
+                v = b if u == a else a
+                if v not in maps:
+                    continue
+                rel = min(best[u].reliability, e.reliability)
+                if v in best and best[v].reliability >= rel:
+                    continue
+                T = best[u].T @ e.towards(u)
+                best[v] = Placement(T, rel, min(best[u].agreement, e.agreement),
+                                    min(best[u].inliers or e.inliers, e.inliers), u,
+                                    best[u].path + (v,), time.time())
+                if v not in frontier:
+                    frontier.append(v)
+        new = {}
+        for n, pl in best.items():
+            prev = old.get(n)
+            still_linked = prev is not None and all(
+                (p, q) in edges or (q, p) in edges for p, q in zip(prev.path, prev.path[1:]))
+            if prev is not None and still_linked and pl.reliability <= prev.reliability + c.replace_margin:
+                new[n] = prev
+                continue
+            new[n] = pl
+            if n == ref:
+                continue
+            x, y, yaw = xyyaw(pl.T)
+            what = 'merged' if prev is None else 'transform improved'
+            events.append('%s %s via %s: x=%.3f m y=%.3f m yaw=%.2f deg, inlier ratio %.3f, '
+                          'agreement %.3f, inliers %d' % (n, what, pl.via, x, y, math.degrees(yaw),
+                                                          pl.reliability, pl.agreement, pl.inliers))
+        with self._lock:
+            self._placements = new
+        return events
+
+    def _patch(self, m: RobotMap, T: np.ndarray, lattice: Lattice) -> Optional[Patch]:
+        key = (m.version, T.tobytes(), lattice.key())
+        cached = self._patches.get(m.name)
+        if cached is not None and cached[0] == key:
+            return cached[1]
+        c = self.config
+        p = warp_patch(m.grid.levels(c.free_thresh, c.occupied_thresh), m.grid.resolution,
+                       m.grid.origin, T, lattice, c.max_cells)
+        self._patches[m.name] = (key, p)
+        return p

@@ -1,0 +1,84 @@
+"""Refinement on the grids themselves (beyond the paper).
+
+Feature positions are only as precise as AKAZE's keypoints on a blocky image, so the RANSAC
+transform is often a cell or two off. This aligns the occupied cells of the source grid to
+the occupied cells of the destination grid by ICP (point-to-point, trimmed at ``max_distance``
+cells), starting from the RANSAC transform. Nearest occupied cells come from one distance
+transform of the destination grid, so each iteration costs one lookup per source wall cell.
+"""
+from __future__ import annotations
+
+from typing import Optional
+
+import cv2
+import numpy as np
+
+from .grid import OCCUPIED, known_bbox
+from .transforms import apply, rigid_from_points
+
+
+class WallField:
+    """Nearest occupied cell of a grid for any cell of its known box (built once per grid)."""
+
+    def __init__(self, levels: np.ndarray, margin: int = 4):
+        box = known_bbox(levels, margin)
+        self.ok = box is not None
+        if not self.ok:
+            return
+        r0, r1, c0, c1 = box
+        self.offset = np.array([c0, r0], np.float64)
+        occ = levels[r0:r1, c0:c1] == OCCUPIED
+        self.ok = bool(occ.any())
+        if not self.ok:
+            return
+        src = np.where(occ, 0, 255).astype(np.uint8)
+        self.dist, labels = cv2.distanceTransformWithLabels(
+            src, cv2.DIST_L2, 5, labelType=cv2.DIST_LABEL_PIXEL)
+        # Labels number the zero (occupied) pixels in raster order, from 1.
+        rr, cc = np.nonzero(occ)
+        self.nearest = np.zeros((rr.size + 1, 2), np.float64)
+        self.nearest[1:, 0] = cc
+        self.nearest[1:, 1] = rr
+        self.labels = labels
+        self.shape = occ.shape
+
+    def lookup(self, pts: np.ndarray):
+        """For (N, 2) cell points: (valid mask, distance cells, nearest wall cell (N, 2))."""
+        local = np.rint(pts - self.offset).astype(np.int64)
+        h, w = self.shape
+        valid = (local[:, 0] >= 0) & (local[:, 0] < w) & (local[:, 1] >= 0) & (local[:, 1] < h)
+        d = np.full(pts.shape[0], np.inf)
+        near = np.zeros_like(pts)
+        lc = local[valid]
+        d[valid] = self.dist[lc[:, 1], lc[:, 0]]
+        near[valid] = self.nearest[self.labels[lc[:, 1], lc[:, 0]]] + self.offset
+        return valid, d, near
+
+
+def occupied_points(levels: np.ndarray, max_points: int = 20000) -> np.ndarray:
+    """(N, 2) cell coordinates (col, row) of occupied cells, evenly thinned to ``max_points``."""
+    rr, cc = np.nonzero(levels == OCCUPIED)
+    pts = np.stack([cc, rr], axis=1).astype(np.float64)
+    if pts.shape[0] > max_points:
+        pts = pts[:: int(np.ceil(pts.shape[0] / max_points))]
+    return pts
+
+
+def refine(field: WallField, src_pts: np.ndarray, A: np.ndarray, max_distance: float = 3.0,
+           iterations: int = 20, min_pairs: int = 30) -> Optional[np.ndarray]:
+    """ICP of the source's wall cells onto the destination's walls; returns the refined 3x3
+    (cells of src -> cells of dst), or None when too few walls pair up to say anything."""
+    if not field.ok or src_pts.shape[0] < min_pairs:
+        return None
+    cur = A.copy()
+    for _ in range(iterations):
+        p = apply(cur, src_pts)
+        valid, d, near = field.lookup(p)
+        sel = valid & (d <= max_distance)
+        if sel.sum() < min_pairs:
+            return None
+        step = rigid_from_points(p[sel], near[sel])
+        cur = step @ cur
+        if abs(step[0, 2]) < 1e-3 and abs(step[1, 2]) < 1e-3 and abs(step[1, 0]) < 1e-5:
+            break
+    return cur

@@ -1,0 +1,358 @@
+"""The one module that speaks ROS: messages <-> numpy grids, the merger node, and the small
+helper nodes (map publisher, map saver). Everything else in the package is ROS-free.
+
+Grids travel as ``rospy.numpy_msg`` messages: plain rospy packs ``int8[] data`` one element at
+a time (about 170 ms for a 2000x2000 grid), numpy_msg sends the same bytes in about 1 ms.
+"""
+from __future__ import annotations
+
+import fnmatch
+import math
+import threading
+import time
+from dataclasses import fields
+from typing import Dict, List, Optional, Sequence
+
+import numpy as np
+import rospy
+import tf2_ros
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import TransformStamped
+from nav_msgs.msg import MapMetaData, OccupancyGrid
+from rospy.numpy_msg import numpy_msg
+from std_srvs.srv import Trigger, TriggerResponse
+
+from .config import MergeConfig
+from .grid import Grid, GridError, make_grid
+from .merger import MapMerger
+from .transforms import se2, xyyaw
+
+NumpyGrid = numpy_msg(OccupancyGrid)
+
+
+# ---------------------------------------------------------------- conversions
+def quaternion_yaw(q) -> float:
+    """Yaw (radians) of a geometry_msgs/Quaternion (planar part only)."""
+    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+
+
+def grid_from_msg(msg, max_cells: int) -> Grid:
+    """Validated Grid from a (numpy_msg) OccupancyGrid; raises GridError with the reason."""
+    info = msg.info
+    o = info.origin
+    yaw = quaternion_yaw(o.orientation)
+    data = np.asarray(msg.data)
+    return make_grid(data, int(info.width), int(info.height), float(info.resolution),
+                     (float(o.position.x), float(o.position.y), yaw), msg.header.frame_id,
+                     msg.header.stamp.to_sec(), max_cells)
+
+
+def grid_to_msg(grid: Grid, stamp: rospy.Time, frame_id: Optional[str] = None):
+    """numpy_msg OccupancyGrid of a Grid (data stays a numpy array: no per-cell packing)."""
+    msg = NumpyGrid()
+    msg.header.stamp = stamp
+    msg.header.frame_id = frame_id if frame_id is not None else grid.frame_id
+    msg.info = metadata(grid, stamp)
+    msg.data = np.ascontiguousarray(grid.data, dtype=np.int8).ravel()
+    return msg
+
+
+def metadata(grid: Grid, stamp: rospy.Time) -> MapMetaData:
+    info = MapMetaData()
+    info.map_load_time = stamp
+    info.resolution = float(grid.resolution)
+    info.width, info.height = grid.width, grid.height
+    info.origin.position.x, info.origin.position.y = float(grid.origin[0]), float(grid.origin[1])
+    info.origin.orientation.z = math.sin(grid.origin[2] / 2.0)
+    info.origin.orientation.w = math.cos(grid.origin[2] / 2.0)
+    return info
+
+
+def transform_msg(T: np.ndarray, parent: str, child: str, stamp: rospy.Time) -> TransformStamped:
+    """TransformStamped ``parent -> child`` from the 3x3 pose of child in parent (metres)."""
+    x, y, yaw = xyyaw(T)
+    t = TransformStamped()
+    t.header.stamp = stamp
+    t.header.frame_id = parent
+    t.child_frame_id = child
+    t.transform.translation.x, t.transform.translation.y = x, y
+    t.transform.rotation.z = math.sin(yaw / 2.0)
+    t.transform.rotation.w = math.cos(yaw / 2.0)
+    return t
+
+
+def load_config() -> MergeConfig:
+    """Every parameter of the node, read once from the private namespace; the defaults are
+    MergeConfig's, which equal config/map_merge.yaml."""
+    default = MergeConfig()
+    return MergeConfig.from_dict({f.name: rospy.get_param('~' + f.name, getattr(default, f.name))
+                                  for f in fields(MergeConfig)})
+
+
+# ---------------------------------------------------------------- the merger node
+class MergeNode:
+    """Thin ROS shell around :class:`MapMerger`.
+
+    Subscribes ``/<robot>/<map_topic>`` for every discovered (or listed) robot, runs estimation
+    in a worker thread at ``estimation_rate``, composites and publishes ``/map`` at
+    ``merge_rate``, broadcasts ``merged_map_frame -> <robot>/map`` at ``tf_rate``, and
+    publishes per-robot state on ``/diagnostics``.
+    """
+
+    def __init__(self, config: MergeConfig):
+        self.cfg = config
+        self.merger = MapMerger(config)
+        self._subs: Dict[str, rospy.Subscriber] = {}
+        self._bad: Dict[str, str] = {}
+        self._lock = threading.Lock()
+        self._map_pub = rospy.Publisher('map', NumpyGrid, queue_size=1, latch=True)
+        self._meta_pub = rospy.Publisher('map_metadata', MapMetaData, queue_size=1, latch=True)
+        self._diag_pub = rospy.Publisher('/diagnostics', DiagnosticArray, queue_size=10)
+        self._tf = tf2_ros.TransformBroadcaster()
+        self._last_est = 0.0
+        self._est_seconds = 0.0
+        rospy.Service('~reset', Trigger, self._reset)
+        if config.robots:
+            for r in config.robots:
+                self._subscribe(r.strip('/'))
+        else:
+            self._discover(None)
+            rospy.Timer(rospy.Duration(1.0 / config.discovery_rate), self._discover)
+        rospy.Timer(rospy.Duration(1.0 / config.merge_rate), self._publish_map)
+        rospy.Timer(rospy.Duration(1.0 / config.tf_rate), self._publish_tf)
+        rospy.Timer(rospy.Duration(1.0), self._publish_diagnostics)
+        self._worker = threading.Thread(target=self._estimation_loop, name='estimation', daemon=True)
+        self._worker.start()
+        rospy.loginfo('multi_map_merge: merging %s maps matching %s; reference %s; merged frame %s',
+                      '/<robot>/' + config.map_topic,
+                      config.robots or config.robot_namespace_pattern,
+                      config.reference_robot or '(first robot by name)', config.merged_map_frame)
+
+    # -- inputs
+    def _discover(self, _event) -> None:
+        try:
+            topics = rospy.get_published_topics()
+        except Exception as e:  # master gone for a moment: try again next time
+            rospy.logwarn_throttle(30, 'multi_map_merge: topic discovery failed: %s' % e)
+            return
+        for topic, ttype in topics:
+            parts = topic.strip('/').split('/')
+            if len(parts) != 2 or parts[1] != self.cfg.map_topic or ttype != 'nav_msgs/OccupancyGrid':
+                continue
+            if fnmatch.fnmatch(parts[0], self.cfg.robot_namespace_pattern):
+                self._subscribe(parts[0])
+
+    def _subscribe(self, robot: str) -> None:
+        with self._lock:
+            if robot in self._subs:
+                return
+            topic = '/%s/%s' % (robot, self.cfg.map_topic)
+            self._subs[robot] = rospy.Subscriber(topic, NumpyGrid, self._on_map, callback_args=robot,
+                                                 queue_size=1, buff_size=2 ** 26)
+        rospy.loginfo('multi_map_merge: robot %s found, subscribed to %s', robot, topic)
+
+    def _on_map(self, msg, robot: str) -> None:
+        try:
+            grid = grid_from_msg(msg, self.cfg.max_cells)
+        except (GridError, ValueError, TypeError) as e:
+            reason = str(e)
+            if self._bad.get(robot) != reason:  # once per robot and reason, not per message
+                rospy.logerr('multi_map_merge: ignoring map of %s: %s', robot, reason)
+                self._bad[robot] = reason
+            self.merger.report_error(robot, reason)
+            return
+        if not grid.frame_id:
+            grid.frame_id = '%s/map' % robot
+        if robot in self._bad:
+            rospy.loginfo('multi_map_merge: map of %s is valid again', robot)
+            del self._bad[robot]
+        self.merger.update_map(robot, grid)
+
+    # -- estimation, off the publishing path
+    def _estimation_loop(self) -> None:
+        period = 1.0 / self.cfg.estimation_rate
+        while not rospy.is_shutdown():
+            t0 = time.monotonic()
+            try:
+                for event in self.merger.estimate():
+                    rospy.loginfo('multi_map_merge: %s', event)
+            except Exception as e:  # a bad cycle must not end estimation for good
+                rospy.logerr('multi_map_merge: estimation failed: %r', e)
+            self._est_seconds = time.monotonic() - t0
+            self._last_est = time.time()
+            left = period - self._est_seconds
+            end = time.monotonic() + max(0.0, left)
+            while not rospy.is_shutdown() and time.monotonic() < end:
+                time.sleep(min(0.1, end - time.monotonic() + 1e-3))
+
+    # -- outputs
+    def _publish_map(self, _event) -> None:
+        try:
+            grid = self.merger.compose()
+        except Exception as e:
+            rospy.logerr_throttle(10, 'multi_map_merge: compositing failed: %r' % e)
+            return
+        if grid is None:
+            return
+        now = rospy.Time.now()
+        self._map_pub.publish(grid_to_msg(grid, now, self.cfg.merged_map_frame))
+        self._meta_pub.publish(metadata(grid, now))
+
+    def _publish_tf(self, _event) -> None:
+        frames = self.merger.frames()
+        now = rospy.Time.now()
+        out = []
+        for robot, pl in self.merger.placements().items():
+            child = frames.get(robot)
+            if child and child != self.cfg.merged_map_frame:
+                out.append(transform_msg(pl.T, self.cfg.merged_map_frame, child, now))
+        if out:
+            self._tf.sendTransform(out)
+
+    def _publish_diagnostics(self, _event) -> None:
+        arr = DiagnosticArray()
+        arr.header.stamp = rospy.Time.now()
+        now = time.time()
+        for robot, st in self.merger.status().items():
+            s = DiagnosticStatus()
+            s.name = 'multi_map_merge: %s' % robot
+            s.hardware_id = robot
+            kv = [('merged', str(st.merged).lower()), ('reference', str(st.reference).lower())]
+            if st.placement is not None:
+                pl = st.placement
+                x, y, yaw = xyyaw(pl.T)
+                kv += [('via', pl.via or '-'), ('chain', ' -> '.join(pl.path)),
+                       ('inlier_ratio', '%.3f' % pl.reliability), ('agreement', '%.3f' % pl.agreement),
+                       ('inliers', str(pl.inliers)), ('x', '%.3f' % x), ('y', '%.3f' % y),
+                       ('yaw', '%.4f' % yaw), ('age_s', '%.1f' % (now - pl.stamp))]
+            if st.last_attempt is not None:
+                a = st.last_attempt
+                kv += [('last_pair', st.last_attempt_with), ('last_inlier_ratio', '%.3f' % a.reliability),
+                       ('last_agreement', '%.3f' % a.agreement), ('last_inliers', str(a.inliers)),
+                       ('last_result', 'accepted' if a.accepted else a.reason)]
+            if st.error:
+                s.level, s.message = DiagnosticStatus.ERROR, 'input ignored: ' + st.error
+            elif st.reference:
+                s.level, s.message = DiagnosticStatus.OK, 'reference map'
+            elif st.merged:
+                s.level, s.message = DiagnosticStatus.OK, 'merged via %s' % st.placement.via
+            else:
+                s.level = DiagnosticStatus.WARN
+                s.message = 'not merged' + (': ' + st.last_attempt.reason if st.last_attempt else '')
+            s.values = [KeyValue(k, v) for k, v in kv]
+            arr.status.append(s)
+        self._diag_pub.publish(arr)
+
+    def _reset(self, _req) -> TriggerResponse:
+        self.merger.reset()
+        rospy.logwarn('multi_map_merge: all transforms forgotten (reset service)')
+        return TriggerResponse(True, 'all transforms forgotten')
+
+
+def run_merge_node() -> None:
+    rospy.init_node('map_merge')
+    MergeNode(load_config())
+    rospy.spin()
+
+
+# ---------------------------------------------------------------- demo / test helpers
+def _revealed(grid: Grid, radius: float) -> Optional[Grid]:
+    """The part of ``grid`` a robot starting at its frame's origin has seen after exploring
+    ``radius`` metres, on a grid cropped to it the way gmapping grows its canvas (new size,
+    new origin at a whole number of cells)."""
+    from .transforms import cell_to_metric
+    W = cell_to_metric(grid.resolution, grid.origin)
+    rr, cc = np.mgrid[0:grid.height, 0:grid.width]
+    x = W[0, 0] * cc + W[0, 1] * rr + W[0, 2]
+    y = W[1, 0] * cc + W[1, 1] * rr + W[1, 2]
+    seen = np.hypot(x, y) <= radius
+    data = np.where(seen, grid.data, -1).astype(np.int8)
+    rows = np.flatnonzero((data >= 0).any(axis=1))
+    cols = np.flatnonzero((data >= 0).any(axis=0))
+    if rows.size == 0:
+        return None
+    m = 20
+    r0, r1 = max(0, rows[0] - m), min(grid.height, rows[-1] + 1 + m)
+    c0, c1 = max(0, cols[0] - m), min(grid.width, cols[-1] + 1 + m)
+    o = W @ np.array([c0 - 0.5, r0 - 0.5, 1.0])
+    return Grid(np.ascontiguousarray(data[r0:r1, c0:c1]), grid.resolution,
+                (float(o[0]), float(o[1]), grid.origin[2]), grid.frame_id)
+
+
+def run_map_publisher(robots: Sequence[str], grids: Sequence[Grid], steps: int, period: float,
+                      start_poses: Optional[Sequence[Sequence[float]]] = None,
+                      once: bool = False) -> None:
+    """Publish each grid on ``/<robot>/map`` (latched, frame ``<robot>/map``) as gmapping would:
+    growing in ``steps`` steps from the robot's start (the frame origin), one every ``period``
+    seconds, then the whole map again every ``period`` seconds. Also broadcasts the robot's
+    own ``<robot>/map -> <robot>/odom -> <robot>/base_footprint`` so TF chains are complete.
+    """
+    rospy.init_node('map_publisher', anonymous=True)
+    pubs = [rospy.Publisher('/%s/map' % r, NumpyGrid, queue_size=1, latch=True) for r in robots]
+    tfb = tf2_ros.TransformBroadcaster()
+    full_radius = [max(1e-3, float(np.hypot(*np.array([[g.origin[0], g.origin[1]],
+                                                        [g.origin[0] + g.width * g.resolution,
+                                                         g.origin[1] + g.height * g.resolution]]).T).max()) * 1.5)
+                   for g in grids]
+    poses = list(start_poses) if start_poses else [(0.0, 0.0, 0.0)] * len(robots)
+    k = 0
+    next_map = 0.0
+    rate = rospy.Rate(10)
+    while not rospy.is_shutdown():
+        now = rospy.Time.now()
+        if time.monotonic() >= next_map:
+            k += 1
+            for r, g, pub, rad in zip(robots, grids, pubs, full_radius):
+                part = g if k >= steps else _revealed(g, rad * k / float(steps))
+                if part is not None:
+                    pub.publish(grid_to_msg(part, now, '%s/map' % r))
+            next_map = time.monotonic() + period
+            if once and k >= steps:
+                rospy.sleep(1.0)
+                return
+        tfs = []
+        for r, p in zip(robots, poses):
+            tfs.append(transform_msg(np.eye(3), '%s/map' % r, '%s/odom' % r, now))
+            tfs.append(transform_msg(se2(*p), '%s/odom' % r, '%s/base_footprint' % r, now))
+        tfb.sendTransform(tfs)
+        rate.sleep()
+
+
+def wait_for_map(topic: str, timeout: float) -> Optional[Grid]:
+    """First OccupancyGrid on ``topic`` within ``timeout`` seconds, as a Grid (None if none)."""
+    try:
+        msg = rospy.wait_for_message(topic, NumpyGrid, timeout=timeout)
+    except rospy.ROSException:
+        return None
+    return grid_from_msg(msg, 10 ** 9)
+
+
+def init_node(name: str) -> None:
+    rospy.init_node(name, anonymous=True)
+
+
+def log(msg: str) -> None:
+    rospy.loginfo(msg)
+
+
+def ros_ok() -> bool:
+    return not rospy.is_shutdown()
+
+
+def lookup_transforms(parent: str, children: List[str], timeout: float) -> Dict[str, np.ndarray]:
+    """tf2 lookups ``parent -> child`` (3x3 poses, metres); children not found are left out."""
+    buf = tf2_ros.Buffer()
+    tf2_ros.TransformListener(buf)
+    out = {}
+    end = time.time() + timeout
+    for c in children:
+        while time.time() < end and not rospy.is_shutdown():
+            try:
+                t = buf.lookup_transform(parent, c, rospy.Time(0), rospy.Duration(0.5))
+                tr = t.transform
+                out[c] = se2(tr.translation.x, tr.translation.y, quaternion_yaw(tr.rotation))
+                break
+            except (tf2_ros.LookupException, tf2_ros.ConnectivityException,
+                    tf2_ros.ExtrapolationException):
+                time.sleep(0.1)
+    return out

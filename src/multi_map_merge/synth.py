@@ -1,0 +1,74 @@
+"""Robots' maps cut out of one real map, each in its own frame, with the answer known.
+
+Used by tests, the demo and the benchmark: a piece of a ground-truth map is moved into a new
+map frame by a pose we choose, so the merger's estimate can be scored against that pose.
+"""
+from __future__ import annotations
+
+import math
+from typing import List, Sequence, Tuple
+
+import cv2
+import numpy as np
+
+from .grid import Grid, known_bbox, levels_to_values
+from .transforms import cell_to_metric, se2
+
+
+def cut_piece(world: Grid, rect: Tuple[int, int, int, int], pose: Sequence[float],
+              frame_id: str = '', margin_cells: int = 20) -> Tuple[Grid, np.ndarray]:
+    """Cut ``rect`` = (row0, row1, col0, col1) (cells, half-open) out of ``world`` and express
+    it in a new frame k whose pose in the world frame is ``pose`` = (x, y, yaw) (m, rad).
+
+    Returns (grid of the piece in frame k, T_world_k 3x3). The grid is axis-aligned in frame
+    k, big enough for the piece plus ``margin_cells`` of unknown, with its origin at a
+    multiple of the resolution as gmapping does."""
+    r0, r1, c0, c1 = rect
+    lv = np.zeros_like(world.levels())
+    lv[r0:r1, c0:c1] = world.levels()[r0:r1, c0:c1]
+    res = world.resolution
+    T = se2(*pose)
+    W_w = cell_to_metric(res, world.origin)
+    corners = np.array([[c0, r0], [c1, r0], [c0, r1], [c1, r1]], np.float64) - 0.5
+    mw = (W_w[:2, :2] @ corners.T).T + W_w[:2, 2]
+    Tinv = np.linalg.inv(T)
+    mk = (Tinv[:2, :2] @ mw.T).T + Tinv[:2, 2]
+    x0 = math.floor(mk[:, 0].min() / res) * res - margin_cells * res
+    y0 = math.floor(mk[:, 1].min() / res) * res - margin_cells * res
+    w = int(math.ceil((mk[:, 0].max() - x0) / res)) + margin_cells
+    h = int(math.ceil((mk[:, 1].max() - y0) / res)) + margin_cells
+    origin = (round(x0, 6), round(y0, 6), 0.0)
+    M = np.linalg.inv(W_w) @ T @ cell_to_metric(res, origin)  # cells of k -> cells of world
+    out = cv2.warpAffine(lv, M[:2], (w, h), flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP,
+                         borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    return Grid(levels_to_values(out), res, origin, frame_id), T
+
+
+def split_rects(world: Grid, n: int, overlap: float = 0.35) -> List[Tuple[int, int, int, int]]:
+    """n overlapping rectangles tiling the known part of ``world`` (a grid of ceil(sqrt n)
+    columns), each grown by ``overlap`` of its size so neighbours share structure."""
+    box = known_bbox(world.levels())
+    if box is None:
+        raise ValueError('world map has no known cell')
+    r0, r1, c0, c1 = box
+    cols = int(math.ceil(math.sqrt(n)))
+    rows = int(math.ceil(n / cols))
+    out = []
+    for k in range(n):
+        i, j = k % cols, k // cols
+        ch = (c1 - c0) / cols
+        rh = (r1 - r0) / rows
+        a0 = c0 + i * ch - overlap * ch
+        a1 = c0 + (i + 1) * ch + overlap * ch
+        b0 = r0 + j * rh - overlap * rh
+        b1 = r0 + (j + 1) * rh + overlap * rh
+        out.append((max(r0, int(b0)), min(r1, int(b1)), max(c0, int(a0)), min(c1, int(a1))))
+    return out
+
+
+def random_poses(n: int, seed: int, max_offset: float = 5.0,
+                 max_yaw: float = math.pi) -> List[Tuple[float, float, float]]:
+    """n poses (x, y, yaw): offsets up to ``max_offset`` metres, yaw up to ``max_yaw`` rad."""
+    rng = np.random.default_rng(seed)
+    return [(float(rng.uniform(-max_offset, max_offset)), float(rng.uniform(-max_offset, max_offset)),
+             float(rng.uniform(-max_yaw, max_yaw))) for _ in range(n)]

@@ -1,0 +1,102 @@
+"""SE(2) maths between grid cells, map frames and the merged frame.
+
+Conventions (used everywhere in the package):
+
+- Homogeneous 3x3 matrices act on column vectors ``[x, y, 1]``.
+- *Cell coordinates* of a grid are continuous ``(col, row)`` with the centre of cell
+  ``data[r, c]`` at ``(c, r)``: OpenCV's pixel-centre convention, in OccupancyGrid row order
+  (row 0 at the origin, no flip; see :mod:`multi_map_merge.grid`).
+- ``cell_to_metric(grid)`` maps a grid's cell coordinates to metres in its ``frame_id``.
+- An *image transform* ``A`` maps cell coordinates of one grid to cell coordinates of another
+  (here: robot map -> reference map). Estimation produces it.
+- A *pose* ``T_ref_k`` is the SE(2) pose of frame k expressed in frame ref: it maps metres in
+  frame k to metres in frame ref. This is what tf2 broadcasts as ``ref -> k``
+  (parent ``ref``, child ``k``).
+
+Because cell order equals frame order (no flip), ``T_ref_k = W_ref @ A @ inv(W_k)`` is rigid
+whenever ``A`` is rigid and both grids share a resolution.
+"""
+from __future__ import annotations
+
+import math
+from typing import Sequence, Tuple
+
+import numpy as np
+
+
+def se2(x: float, y: float, yaw: float) -> np.ndarray:
+    """3x3 homogeneous matrix of a pose: metres, radians."""
+    c, s = math.cos(yaw), math.sin(yaw)
+    return np.array([[c, -s, x], [s, c, y], [0.0, 0.0, 1.0]])
+
+
+def xyyaw(T: np.ndarray) -> Tuple[float, float, float]:
+    """(x, y, yaw) of a 3x3 rigid matrix: metres, radians in (-pi, pi]."""
+    return float(T[0, 2]), float(T[1, 2]), float(math.atan2(T[1, 0], T[0, 0]))
+
+
+def inverse(T: np.ndarray) -> np.ndarray:
+    """Inverse of a 3x3 rigid/affine matrix."""
+    return np.linalg.inv(T)
+
+
+def to3x3(A: np.ndarray) -> np.ndarray:
+    """2x3 affine (OpenCV style) -> 3x3 homogeneous."""
+    if A.shape == (3, 3):
+        return A
+    return np.vstack([A, [0.0, 0.0, 1.0]])
+
+
+def cell_to_metric(resolution: float, origin: Sequence[float]) -> np.ndarray:
+    """3x3 matrix: cell coordinates (col, row, centres at integers) -> metres in the grid frame.
+
+    The origin is the pose of cell (0, 0)'s outer corner, so cell (c, r)'s centre lies at
+    ``origin ⊕ ((c + 0.5) * res, (r + 0.5) * res)``.
+    """
+    ox, oy, oyaw = float(origin[0]), float(origin[1]), float(origin[2])
+    S = np.array([[resolution, 0.0, 0.5 * resolution],
+                  [0.0, resolution, 0.5 * resolution],
+                  [0.0, 0.0, 1.0]])
+    return se2(ox, oy, oyaw) @ S
+
+
+def image_to_pose(A: np.ndarray, res_ref: float, origin_ref: Sequence[float],
+                  res_k: float, origin_k: Sequence[float]) -> np.ndarray:
+    """Image transform (cells of map k -> cells of the reference) -> pose T_ref_k (metres).
+
+    ``res_k`` is the resolution of the grid ``A`` was estimated on (after any rescaling).
+    """
+    return cell_to_metric(res_ref, origin_ref) @ to3x3(A) @ inverse(cell_to_metric(res_k, origin_k))
+
+
+def pose_to_image(T_ref_k: np.ndarray, res_ref: float, origin_ref: Sequence[float],
+                  res_k: float, origin_k: Sequence[float]) -> np.ndarray:
+    """Inverse of :func:`image_to_pose`: 3x3 cells-of-k -> cells-of-ref."""
+    return inverse(cell_to_metric(res_ref, origin_ref)) @ T_ref_k @ cell_to_metric(res_k, origin_k)
+
+
+def rigid_from_points(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """Least-squares rigid 3x3 (rotation + translation, det +1) with dst ~ R src + t (Kabsch)."""
+    ms, md = src.mean(axis=0), dst.mean(axis=0)
+    H = (src - ms).T @ (dst - md)
+    U, _, Vt = np.linalg.svd(H)
+    d = np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0
+    R = Vt.T @ np.diag([1.0, d]) @ U.T
+    t = md - R @ ms
+    T = np.eye(3)
+    T[:2, :2] = R
+    T[:2, 2] = t
+    return T
+
+
+def apply(T: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """Apply a 3x3 transform to an (N, 2) array of points."""
+    return pts @ T[:2, :2].T + T[:2, 2]
+
+
+def pose_distance(T1: np.ndarray, T2: np.ndarray) -> Tuple[float, float]:
+    """(translation distance in metres, |yaw difference| in radians) between two poses."""
+    x1, y1, a1 = xyyaw(T1)
+    x2, y2, a2 = xyyaw(T2)
+    da = abs((a1 - a2 + math.pi) % (2 * math.pi) - math.pi)
+    return math.hypot(x1 - x2, y1 - y2), da
