@@ -176,3 +176,27 @@ def rescale(grid: Grid, resolution: float) -> Grid:
         dil = cv2.dilate(lv, np.ones((k, k), np.uint8), anchor=(0, 0))
         out = dil[rows][:, cols]
     return Grid(levels_to_values(out), float(resolution), grid.origin, grid.frame_id, grid.stamp)
+
+
+def apply_update(grid: Grid, x: int, y: int, width: int, height: int, data) -> Grid:
+    """A copy of ``grid`` with the rectangle of an OccupancyGridUpdate written in.
+
+    Args:
+        x, y: cells, column and row of the rectangle's first cell (OccupancyGrid order).
+        width, height: cells.
+        data: flat row-major values of the rectangle (-1, 0..100).
+    Raises GridError when the rectangle does not fit or the data does not match it.
+    """
+    arr = np.asarray(data)
+    if width < 0 or height < 0 or x < 0 or y < 0 or x + width > grid.width or y + height > grid.height:
+        raise GridError('update %dx%d at (%d, %d) does not fit the %dx%d grid'
+                        % (width, height, x, y, grid.width, grid.height))
+    if arr.size != width * height:
+        raise GridError('update data length %d != width*height = %d' % (arr.size, width * height))
+    if arr.size:
+        d = arr.astype(np.int16, copy=False)
+        if int(d.min()) < -1 or int(d.max()) > 100:
+            raise GridError('update values outside -1..100')
+    out = grid.data.copy()
+    out[y:y + height, x:x + width] = arr.astype(np.int8, copy=False).reshape(height, width)
+    return Grid(out, grid.resolution, grid.origin, grid.frame_id, grid.stamp)

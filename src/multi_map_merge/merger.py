@@ -29,7 +29,7 @@ from .features import FeatureExtractor, Features
 from .grid import Grid, rescale
 from .merge import Lattice, Patch, composite, lattice_for, warp_patch
 from .refine import WallField, occupied_points, refine
-from .transforms import image_to_pose, pose_to_image, xyyaw
+from .transforms import image_to_pose, pose_to_image, se2, xyyaw
 
 
 @dataclass
@@ -112,6 +112,8 @@ class MapMerger:
         self._placements: Dict[str, Placement] = {}
         self._patches: Dict[str, Tuple[tuple, Optional[Patch]]] = {}
         self._errors: Dict[str, str] = {}
+        self._restored: Dict[Tuple[str, str], Edge] = {}
+        self.state_version = 0    # bumped whenever links or placements change (for persistence)
 
     # ------------------------------------------------------------------ inputs
     @property
@@ -125,12 +127,40 @@ class MapMerger:
             self._reference = sorted(self._maps)[0]
         return self._reference
 
-    def update_map(self, name: str, grid: Grid) -> None:
-        """Take a robot's new grid (already validated, see :func:`grid.make_grid`)."""
+    def update_map(self, name: str, grid: Grid) -> Optional[str]:
+        """Take a robot's new grid (already validated, see :func:`grid.make_grid`).
+
+        Returns a message when the map restarted (gmapping reset: the grid shrank, or lost
+        most of what it knew); the robot's links are then forgotten and re-estimated, and the
+        merged map shows only the new map's cells.
+        """
         with self._lock:
+            prev = self._maps.get(name)
+            event = None
+            if prev is not None and _restarted(prev.raw, grid):
+                event = ('map of %s restarted (%dx%d cells -> %dx%d): its transform is forgotten '
+                         'and will be estimated again' % (name, prev.raw.width, prev.raw.height,
+                                                           grid.width, grid.height))
+                self._forget_locked(name)
             self._version += 1
             self._maps[name] = RobotMap(name, grid, self._version, time.time())
             self._errors.pop(name, None)
+            return event
+
+    def _forget_locked(self, name: str) -> None:
+        had = name in self._placements or any(name in k for k in self._edges)
+        if name == self._reference:
+            # Every placement is a pose in the reference's frame, which just moved.
+            self._placements.clear()
+            self._patches.clear()
+        self._placements.pop(name, None)
+        self._patches.pop(name, None)
+        for k in [k for k in self._edges if name in k]:
+            del self._edges[k]
+        for k in [k for k in self._restored if name in k]:
+            del self._restored[k]
+        if had:
+            self.state_version += 1
 
     def report_error(self, name: str, reason: str) -> None:
         """Remember why a robot's last input was refused (shown in status)."""
@@ -138,13 +168,10 @@ class MapMerger:
             self._errors[name] = reason
 
     def remove_robot(self, name: str) -> None:
-        """Forget a robot that vanished: its map leaves the merge, its links are dropped."""
+        """Forget a robot entirely: its map leaves the merge, its links are dropped."""
         with self._lock:
             self._maps.pop(name, None)
-            self._placements.pop(name, None)
-            self._patches.pop(name, None)
-            for k in [k for k in self._edges if name in k]:
-                del self._edges[k]
+            self._forget_locked(name)
 
     def reset(self) -> None:
         """Forget every transform (maps are kept)."""
@@ -172,6 +199,8 @@ class MapMerger:
         ref, maps = self._snapshot()
         if not maps:
             return []
+        # (0) links saved by an earlier run are used only once the grids confirm them
+        events = self._verify_restored(maps)
         for m in maps.values():
             # (1) grid -> image -> AKAZE features, only for maps that changed
             self._features_of(m)
@@ -179,7 +208,7 @@ class MapMerger:
             # (2) match, (3) rigid RANSAC + inlier ratio, (4) verify on the grids
             self._estimate_pair(maps[a], maps[b])
         # (4) per robot keep the most reliable placement; (6) it gives the robot's TF
-        return self._place(maps, ref)
+        return events + self._place(maps, ref)
 
     def compose(self) -> Optional[Grid]:
         """(5) Warp every placed map into the merged frame and composite; None before any map
@@ -221,7 +250,60 @@ class MapMerger:
                 out[n] = RobotStatus(pl is not None, n == ref, pl, last, other, self._errors.get(n, ''))
             return out
 
+    def export_state(self) -> Dict:
+        """Verified links and placements as plain data (see :mod:`persist`)."""
+        with self._lock:
+            edges = [dict(zip(('x', 'y', 'yaw'), xyyaw(e.T)), parent=e.parent, child=e.child,
+                          reliability=float(e.reliability), agreement=float(e.agreement),
+                          inliers=int(e.inliers), matches=int(e.matches))
+                     for e in self._edges.values()]
+            placements = {n: dict(zip(('x', 'y', 'yaw'), xyyaw(p.T)), reliability=float(p.reliability),
+                                  agreement=float(p.agreement), via=p.via, chain=list(p.path))
+                          for n, p in self._placements.items()}
+            return {'reference': self._reference_locked(), 'edges': edges, 'placements': placements}
+
+    def restore_state(self, state: Dict) -> int:
+        """Take links saved by :meth:`export_state`; each is verified again on the grids before
+        it is used. Returns how many were taken. Links saved under another reference robot
+        are still valid (they are pairwise)."""
+        n = 0
+        with self._lock:
+            for d in state.get('edges', []) or []:
+                try:
+                    e = Edge(str(d['parent']), str(d['child']), se2(float(d['x']), float(d['y']), float(d['yaw'])),
+                             float(d['reliability']), float(d['agreement']), int(d['inliers']),
+                             int(d.get('matches', 0)), time.time())
+                except (KeyError, TypeError, ValueError):
+                    continue
+                if all(math.isfinite(v) for v in e.T.ravel()):
+                    self._restored[(e.parent, e.child)] = e
+                    n += 1
+        return n
+
     # ------------------------------------------------------------------ steps
+    def _verify_restored(self, maps: Dict[str, RobotMap]) -> List[str]:
+        """Re-verify restored links whose two maps are here; keep or drop each, once."""
+        c = self.config
+        events = []
+        with self._lock:
+            pending = [(k, e) for k, e in self._restored.items() if k[0] in maps and k[1] in maps]
+        for key, e in pending:
+            pa, ch = maps[key[0]], maps[key[1]]
+            A = pose_to_image(e.T, pa.grid.resolution, pa.grid.origin, ch.grid.resolution, ch.grid.origin)
+            ag, ov = est.agreement(pa.grid.levels(c.free_thresh, c.occupied_thresh),
+                                   ch.grid.levels(c.free_thresh, c.occupied_thresh), A,
+                                   c.agreement_tolerance)
+            ok = ov >= c.min_overlap_cells and ag >= c.min_agreement
+            with self._lock:
+                self._restored.pop(key, None)
+                if ok and key not in self._edges:
+                    e.agreement = ag
+                    self._edges[key] = e
+                    self.state_version += 1
+            events.append('restored link %s -> %s %s (agreement %.3f, overlap %d cells)'
+                          % (key[0], key[1], 'verified' if ok else 'REJECTED', ag, ov))
+        return events
+
     def _features_of(self, m: RobotMap) -> Features:
         c = self.config
         cached = self._features.get(m.name)
@@ -268,6 +350,7 @@ class MapMerger:
             if old is None or r.reliability > old.reliability + c.replace_margin:
                 self._edges[key] = Edge(pa.name, ch.name, T, r.reliability, r.agreement,
                                         r.inliers, r.matches, time.time())
+                self.state_version += 1
 
     def estimate_grids(self, pa: RobotMap, ch: RobotMap, seed: int = 0) -> est.PairEstimate:
         """Steps (2)-(4) for one pair: cells of ``ch`` -> cells of ``pa``, verified."""
@@ -282,29 +365,40 @@ class MapMerger:
                                 c.ransac_hypotheses)
         lv_a = pa.grid.levels(c.free_thresh, c.occupied_thresh)
         lv_b = ch.grid.levels(c.free_thresh, c.occupied_thresh)
-        best: Optional[est.PairEstimate] = None
+        # Score every hypothesis on the grids first (cheap), then polish only the promising
+        # ones by ICP (the costly step) and score them again.
+        scored = []
         for A, mask in hyps:
-            h = est.PairEstimate(A, matches=r.matches, inliers=int(mask.sum()))
-            if h.inliers < c.min_inliers:
-                h.reason = 'too few inliers (%d < %d)' % (h.inliers, c.min_inliers)
+            inl = int(mask.sum())
+            if inl < c.min_inliers:
+                continue
+            ag, ov = est.agreement(lv_a, lv_b, A, c.agreement_tolerance)
+            scored.append((ag, inl, A))
+        scored.sort(key=lambda t: (t[0], t[1]), reverse=True)
+        best: Optional[est.PairEstimate] = None
+        th2 = c.ransac_threshold ** 2
+        for rank, (ag, inl, A) in enumerate(scored):
+            h = est.PairEstimate(A, matches=r.matches, inliers=inl)
+            if c.refine and rank < 2 and ag >= c.min_agreement - 0.2:
+                h.A = self._refined(pa, ch, A)
+            good_inl = int(est._inliers(h.A, src[unique], dst[unique], th2).sum()) if r.matches else 0
+            h.reliability = good_inl / float(max(1, r.matches))
+            h.agreement, h.overlap = est.agreement(lv_a, lv_b, h.A, c.agreement_tolerance)
+            if h.overlap < c.min_overlap_cells:
+                h.reason = 'overlap %d cells < %d' % (h.overlap, c.min_overlap_cells)
+            elif h.agreement < c.min_agreement:
+                h.reason = 'grids disagree: agreement %.2f < %.2f' % (h.agreement, c.min_agreement)
+            elif h.reliability < c.min_reliability:
+                h.reason = 'inlier ratio %.3f < %.3f' % (h.reliability, c.min_reliability)
             else:
-                if c.refine:
-                    h.A = self._refined(pa, ch, A)
-                th2 = c.ransac_threshold ** 2
-                good_inl = int(est._inliers(h.A, src[unique], dst[unique], th2).sum()) if r.matches else 0
-                h.reliability = good_inl / float(max(1, r.matches))
-                h.agreement, h.overlap = est.agreement(lv_a, lv_b, h.A, c.agreement_tolerance)
-                if h.overlap < c.min_overlap_cells:
-                    h.reason = 'overlap %d cells < %d' % (h.overlap, c.min_overlap_cells)
-                elif h.agreement < c.min_agreement:
-                    h.reason = 'grids disagree: agreement %.2f < %.2f' % (h.agreement, c.min_agreement)
-                elif h.reliability < c.min_reliability:
-                    h.reason = 'inlier ratio %.3f < %.3f' % (h.reliability, c.min_reliability)
-                else:
-                    h.accepted = True
+                h.accepted = True
             # The grids decide between hypotheses: the best-agreeing accepted one wins.
             if best is None or (h.accepted, h.agreement, h.inliers) > (best.accepted, best.agreement, best.inliers):
                 best = h
+        if best is None and hyps:
+            r.inliers = max(int(m.sum()) for _, m in hyps)
+            r.reason = 'too few inliers (%d < %d)' % (r.inliers, c.min_inliers)
+            return r
         if best is None:
             r.reason = 'RANSAC found no consistent transform'
             return r
@@ -369,6 +463,8 @@ class MapMerger:
                           'agreement %.3f, inliers %d' % (n, what, pl.via, x, y, math.degrees(yaw),
                                                           pl.reliability, pl.agreement, pl.inliers))
         with self._lock:
+            if set(new) != set(self._placements) or any(new[n] is not self._placements.get(n) for n in new):
+                self.state_version += 1
             self._placements = new
         return events
 
@@ -382,3 +478,13 @@ class MapMerger:
                        m.grid.origin, T, lattice, c.max_cells)
         self._patches[m.name] = (key, p)
         return p
+
+
+def _restarted(old: Grid, new: Grid) -> bool:
+    """gmapping only ever grows its grid (same or larger, origin moving outwards) and keeps
+    what it knew, so a grid that shrank or lost most of its known cells is a new map."""
+    if new.width < old.width or new.height < old.height:
+        return True
+    known_old = int(np.count_nonzero(old.data >= 0))
+    known_new = int(np.count_nonzero(new.data >= 0))
+    return known_old > 1000 and known_new < 0.5 * known_old

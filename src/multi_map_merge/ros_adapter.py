@@ -18,16 +18,19 @@ import rospy
 import tf2_ros
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import TransformStamped
+from map_msgs.msg import OccupancyGridUpdate
 from nav_msgs.msg import MapMetaData, OccupancyGrid
 from rospy.numpy_msg import numpy_msg
 from std_srvs.srv import Trigger, TriggerResponse
 
 from .config import MergeConfig
-from .grid import Grid, GridError, make_grid
+from .grid import Grid, GridError, apply_update, make_grid
 from .merger import MapMerger
+from .persist import load_state, save_state
 from .transforms import se2, xyyaw
 
 NumpyGrid = numpy_msg(OccupancyGrid)
+NumpyGridUpdate = numpy_msg(OccupancyGridUpdate)
 
 
 # ---------------------------------------------------------------- conversions
@@ -102,8 +105,10 @@ class MergeNode:
     def __init__(self, config: MergeConfig):
         self.cfg = config
         self.merger = MapMerger(config)
-        self._subs: Dict[str, rospy.Subscriber] = {}
+        self._subs: Dict[str, list] = {}
         self._bad: Dict[str, str] = {}
+        self._latest: Dict[str, Grid] = {}   # last accepted raw grid per robot (for map_updates)
+        self._saved_version = -1
         self._lock = threading.Lock()
         self._map_pub = rospy.Publisher('map', NumpyGrid, queue_size=1, latch=True)
         self._meta_pub = rospy.Publisher('map_metadata', MapMetaData, queue_size=1, latch=True)
@@ -112,6 +117,14 @@ class MergeNode:
         self._last_est = 0.0
         self._est_seconds = 0.0
         rospy.Service('~reset', Trigger, self._reset)
+        if config.transforms_file:
+            try:
+                n = self.merger.restore_state(load_state(config.transforms_file))
+                rospy.loginfo('multi_map_merge: %d saved links read from %s; each is verified again '
+                              'before use', n, config.transforms_file)
+            except ValueError as e:
+                rospy.logerr('multi_map_merge: %s (starting without saved transforms)', e)
+            self._saved_version = self.merger.state_version
         if config.robots:
             for r in config.robots:
                 self._subscribe(r.strip('/'))
@@ -147,26 +160,49 @@ class MergeNode:
             if robot in self._subs:
                 return
             topic = '/%s/%s' % (robot, self.cfg.map_topic)
-            self._subs[robot] = rospy.Subscriber(topic, NumpyGrid, self._on_map, callback_args=robot,
-                                                 queue_size=1, buff_size=2 ** 26)
+            self._subs[robot] = [
+                rospy.Subscriber(topic, NumpyGrid, self._on_map, callback_args=robot,
+                                 queue_size=1, buff_size=2 ** 26),
+                rospy.Subscriber(topic + '_updates', NumpyGridUpdate, self._on_update,
+                                 callback_args=robot, queue_size=10, buff_size=2 ** 24)]
         rospy.loginfo('multi_map_merge: robot %s found, subscribed to %s', robot, topic)
 
-    def _on_map(self, msg, robot: str) -> None:
-        try:
-            grid = grid_from_msg(msg, self.cfg.max_cells)
-        except (GridError, ValueError, TypeError) as e:
-            reason = str(e)
-            if self._bad.get(robot) != reason:  # once per robot and reason, not per message
-                rospy.logerr('multi_map_merge: ignoring map of %s: %s', robot, reason)
-                self._bad[robot] = reason
-            self.merger.report_error(robot, reason)
-            return
+    def _refuse(self, robot: str, reason: str) -> None:
+        if self._bad.get(robot) != reason:  # once per robot and reason, not per message
+            rospy.logerr('multi_map_merge: ignoring map of %s: %s', robot, reason)
+            self._bad[robot] = reason
+        self.merger.report_error(robot, reason)
+
+    def _accept(self, robot: str, grid: Grid) -> None:
         if not grid.frame_id:
             grid.frame_id = '%s/map' % robot
         if robot in self._bad:
             rospy.loginfo('multi_map_merge: map of %s is valid again', robot)
             del self._bad[robot]
-        self.merger.update_map(robot, grid)
+        self._latest[robot] = grid
+        event = self.merger.update_map(robot, grid)
+        if event:
+            rospy.logwarn('multi_map_merge: %s', event)
+
+    def _on_map(self, msg, robot: str) -> None:
+        try:
+            grid = grid_from_msg(msg, self.cfg.max_cells)
+        except (GridError, ValueError, TypeError) as e:
+            self._refuse(robot, str(e))
+            return
+        self._accept(robot, grid)
+
+    def _on_update(self, msg, robot: str) -> None:
+        base = self._latest.get(robot)
+        if base is None:
+            return  # an update before any full map has nothing to apply to
+        try:
+            grid = apply_update(base, int(msg.x), int(msg.y), int(msg.width), int(msg.height),
+                                np.asarray(msg.data))
+        except (GridError, ValueError, TypeError) as e:
+            self._refuse(robot, 'map_updates: %s' % e)
+            return
+        self._accept(robot, grid)
 
     # -- estimation, off the publishing path
     def _estimation_loop(self) -> None:
@@ -180,10 +216,21 @@ class MergeNode:
                 rospy.logerr('multi_map_merge: estimation failed: %r', e)
             self._est_seconds = time.monotonic() - t0
             self._last_est = time.time()
+            self._persist()
             left = period - self._est_seconds
             end = time.monotonic() + max(0.0, left)
             while not rospy.is_shutdown() and time.monotonic() < end:
                 time.sleep(min(0.1, end - time.monotonic() + 1e-3))
+
+    def _persist(self) -> None:
+        if not self.cfg.transforms_file or self.merger.state_version == self._saved_version:
+            return
+        version = self.merger.state_version
+        try:
+            save_state(self.cfg.transforms_file, self.merger.export_state())
+            self._saved_version = version
+        except OSError as e:
+            rospy.logerr_throttle(60, 'multi_map_merge: cannot save %s: %s' % (self.cfg.transforms_file, e))
 
     # -- outputs
     def _publish_map(self, _event) -> None:
