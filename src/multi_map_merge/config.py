@@ -24,8 +24,7 @@ class MergeConfig:
     occupied_thresh: float = 65.0            # percent: >= occupied_thresh is occupied
     max_cells: int = 25_000_000              # a grid larger than this is rejected
     # --- features and matching ---
-    akaze_threshold: float = 0.001
-    upscale_below_cells: int = 250_000       # describe smaller known areas at 2x size
+    akaze_threshold: float = 0.0003          # lower finds more features (small maps need them)
     match_candidates: int = 2                # nearest neighbours kept per feature
     match_ratio: float = 0.8                 # Lowe's ratio, only to score reliability
     # --- RANSAC and reliability ---

@@ -99,7 +99,7 @@ class MapMerger:
     def __init__(self, config: Optional[MergeConfig] = None):
         self.config = config or MergeConfig()
         c = self.config
-        self._extract = FeatureExtractor(c.akaze_threshold, c.upscale_below_cells)
+        self._extract = FeatureExtractor(c.akaze_threshold)
         self._lock = threading.Lock()
         self._maps: Dict[str, RobotMap] = {}
         self._version = 0
