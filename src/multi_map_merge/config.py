@@ -25,6 +25,7 @@ class MergeConfig:
     max_cells: int = 25_000_000              # a grid larger than this is rejected
     # --- features and matching ---
     akaze_threshold: float = 0.0003          # lower finds more features (small maps need them)
+    max_features: int = 2000                 # strongest features kept per map; 0 = all
     match_candidates: int = 2                # nearest neighbours kept per feature
     match_ratio: float = 0.8                 # Lowe's ratio, only to score reliability
     # --- RANSAC and reliability ---
@@ -40,6 +41,8 @@ class MergeConfig:
     min_agreement: float = 0.8               # wall agreement 0..1 in the overlap
     min_overlap_cells: int = 400
     agreement_tolerance: int = 2             # cells
+    # --- speed ---
+    workers: int = 0                         # estimation threads; 0 = one per core
     # --- persistence (node only) ---
     transforms_file: str = ''                # '' = do not persist
 

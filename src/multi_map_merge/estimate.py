@@ -115,12 +115,28 @@ def ransac_rigid(src: np.ndarray, dst: np.ndarray, threshold: float, iterations:
     tx = mid_q[:, 0] - (c * mid_p[:, 0] - s * mid_p[:, 1])
     ty = mid_q[:, 1] - (s * mid_p[:, 0] + c * mid_p[:, 1])
     th2 = threshold * threshold
-    counts = np.empty(c.size, np.int64)
-    for k0 in range(0, c.size, 512):  # chunks keep the (hypotheses x matches) block small
-        sl = slice(k0, k0 + 512)
-        ex = c[sl, None] * src[None, :, 0] - s[sl, None] * src[None, :, 1] + tx[sl, None] - dst[None, :, 0]
-        ey = s[sl, None] * src[None, :, 0] + c[sl, None] * src[None, :, 1] + ty[sl, None] - dst[None, :, 1]
-        counts[sl] = ((ex * ex + ey * ey) < th2).sum(axis=1)
+
+    def count(hyp: np.ndarray, pts: np.ndarray) -> np.ndarray:
+        out = np.empty(hyp.size, np.int64)
+        for k0 in range(0, hyp.size, 512):  # chunks keep the (hypotheses x matches) block small
+            h = hyp[k0:k0 + 512]
+            sx, sy = src[pts, 0], src[pts, 1]
+            ex = c[h, None] * sx - s[h, None] * sy + tx[h, None] - dst[pts, 0]
+            ey = s[h, None] * sx + c[h, None] * sy + ty[h, None] - dst[pts, 1]
+            out[k0:k0 + 512] = ((ex * ex + ey * ey) < th2).sum(axis=1)
+        return out
+
+    # Preemptive scoring: every hypothesis on a random subset of the matches, then only the
+    # best few hundred on all of them (the ranking at the top is what matters).
+    allh = np.arange(c.size)
+    if n > 400 and c.size > 300:
+        sub = rng.choice(n, 400, replace=False)
+        pre = count(allh, sub)
+        keep = np.argsort(-pre, kind='stable')[:300]
+        counts = np.zeros(c.size, np.int64)
+        counts[keep] = count(keep, np.arange(n))
+    else:
+        counts = count(allh, np.arange(n))
     out: List[Tuple[np.ndarray, np.ndarray]] = []
     centre = src.mean(axis=0)
     for h in np.argsort(-counts, kind='stable')[:50 * hypotheses]:

@@ -45,10 +45,13 @@ class FeatureExtractor:
 
     Args:
         threshold: AKAZE detector response threshold; lower finds more (and weaker) features.
+        max_features: keep at most this many, the strongest (matching cost grows with the
+            product of two maps' feature counts); 0 keeps all.
     """
 
-    def __init__(self, threshold: float = 0.0003):
+    def __init__(self, threshold: float = 0.0003, max_features: int = 2000):
         self._akaze = cv2.AKAZE_create(threshold=threshold)
+        self._max = int(max_features)
 
     def __call__(self, levels: np.ndarray) -> Features:
         """Features of a grid given its levels array (see :func:`grid.classify`)."""
@@ -64,5 +67,9 @@ class FeatureExtractor:
         kps, desc = self._akaze.detectAndCompute(img, None)
         if desc is None or not kps:
             return empty_features()
+        if self._max and len(kps) > self._max:
+            strongest = np.argsort([-kp.response for kp in kps], kind='stable')[:self._max]
+            kps = [kps[i] for i in strongest]
+            desc = desc[strongest]
         pts = np.array([kp.pt for kp in kps], np.float32) + np.array([c0 - _MARGIN, r0 - _MARGIN], np.float32)
         return Features(pts, desc, int(np.count_nonzero(levels)))

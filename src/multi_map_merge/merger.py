@@ -15,9 +15,11 @@ and computes outside it.
 from __future__ import annotations
 
 import math
+import os
 import threading
 import time
 import zlib
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Dict, List, Optional, Tuple
 
@@ -99,7 +101,11 @@ class MapMerger:
     def __init__(self, config: Optional[MergeConfig] = None):
         self.config = config or MergeConfig()
         c = self.config
-        self._extract = FeatureExtractor(c.akaze_threshold)
+        self._extract = FeatureExtractor(c.akaze_threshold, c.max_features)
+        # AKAZE, matching, warping and most numpy work release the GIL, so threads use every
+        # core without copying grids between processes.
+        self._pool = ThreadPoolExecutor(max_workers=c.workers or os.cpu_count() or 1,
+                                        thread_name_prefix='mmm-estimate')
         self._lock = threading.Lock()
         self._maps: Dict[str, RobotMap] = {}
         self._version = 0
@@ -201,12 +207,13 @@ class MapMerger:
             return []
         # (0) links saved by an earlier run are used only once the grids confirm them
         events = self._verify_restored(maps)
-        for m in maps.values():
-            # (1) grid -> image -> AKAZE features, only for maps that changed
-            self._features_of(m)
-        for a, b in self._pairs(maps, ref):
-            # (2) match, (3) rigid RANSAC + inlier ratio, (4) verify on the grids
-            self._estimate_pair(maps[a], maps[b])
+        # (1) grid -> image -> AKAZE features, only for maps that changed
+        list(self._pool.map(self._features_of, maps.values()))
+        list(self._pool.map(lambda m: self._walls_of(m), maps.values()))
+        # (2) match, (3) rigid RANSAC + inlier ratio, (4) verify on the grids, for every pair
+        # whose maps changed
+        list(self._pool.map(lambda ab: self._estimate_pair(maps[ab[0]], maps[ab[1]]),
+                            self._pairs(maps, ref)))
         # (4) per robot keep the most reliable placement; (6) it gives the robot's TF
         return events + self._place(maps, ref)
 

@@ -55,7 +55,7 @@ class WallField:
         return valid, d, near
 
 
-def occupied_points(levels: np.ndarray, max_points: int = 20000) -> np.ndarray:
+def occupied_points(levels: np.ndarray, max_points: int = 6000) -> np.ndarray:
     """(N, 2) cell coordinates (col, row) of occupied cells, evenly thinned to ``max_points``."""
     rr, cc = np.nonzero(levels == OCCUPIED)
     pts = np.stack([cc, rr], axis=1).astype(np.float64)
@@ -79,6 +79,6 @@ def refine(field: WallField, src_pts: np.ndarray, A: np.ndarray, max_distance: f
             return None
         step = rigid_from_points(p[sel], near[sel])
         cur = step @ cur
-        if abs(step[0, 2]) < 1e-3 and abs(step[1, 2]) < 1e-3 and abs(step[1, 0]) < 1e-5:
+        if abs(step[0, 2]) < 0.01 and abs(step[1, 2]) < 0.01 and abs(step[1, 0]) < 1e-4:
             break
     return cur
