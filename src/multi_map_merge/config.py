@@ -26,6 +26,7 @@ class MergeConfig:
     # --- features and matching ---
     akaze_threshold: float = 0.0003          # lower finds more features (small maps need them)
     max_features: int = 2000                 # strongest features kept per map; 0 = all
+    feature_cells: int = 120_000             # larger known areas are described coarser; 0 = never
     match_candidates: int = 2                # nearest neighbours kept per feature
     match_ratio: float = 0.8                 # Lowe's ratio, only to score reliability
     # --- RANSAC and reliability ---

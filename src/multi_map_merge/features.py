@@ -47,11 +47,17 @@ class FeatureExtractor:
         threshold: AKAZE detector response threshold; lower finds more (and weaker) features.
         max_features: keep at most this many, the strongest (matching cost grows with the
             product of two maps' feature counts); 0 keeps all.
+        detect_cells: a known area larger than this many cells is described on a coarser
+            image (integer factor, max-pooled so walls survive); 0 never coarsens. AKAZE's
+            cost grows with the image, and the grid refinement after RANSAC restores the
+            full resolution's precision.
     """
 
-    def __init__(self, threshold: float = 0.0003, max_features: int = 2000):
+    def __init__(self, threshold: float = 0.0003, max_features: int = 2000,
+                 detect_cells: int = 0):
         self._akaze = cv2.AKAZE_create(threshold=threshold)
         self._max = int(max_features)
+        self._cells = int(detect_cells)
 
     def __call__(self, levels: np.ndarray) -> Features:
         """Features of a grid given its levels array (see :func:`grid.classify`)."""
@@ -62,8 +68,15 @@ class FeatureExtractor:
         h, w = levels.shape
         a0, a1, b0, b1 = max(0, r0 - _MARGIN), min(h, r1 + _MARGIN), max(0, c0 - _MARGIN), min(w, c1 + _MARGIN)
         # where the grid itself ends before the margin, pad with unknown
-        img = cv2.copyMakeBorder(to_image(levels[a0:a1, b0:b1]), a0 - (r0 - _MARGIN), (r1 + _MARGIN) - a1,
-                                 b0 - (c0 - _MARGIN), (c1 + _MARGIN) - b1, cv2.BORDER_CONSTANT, value=127)
+        f = 1
+        if self._cells and (r1 - r0) * (c1 - c0) > self._cells:
+            f = int(np.ceil(np.sqrt((r1 - r0) * (c1 - c0) / float(self._cells))))
+        lv = levels[a0:a1, b0:b1]
+        if f > 1:
+            lv = _maxpool(lv, f)
+        pad = [(a0 - (r0 - _MARGIN)) // f, -(-((r1 + _MARGIN) - a1) // f),
+               (b0 - (c0 - _MARGIN)) // f, -(-((c1 + _MARGIN) - b1) // f)]
+        img = cv2.copyMakeBorder(to_image(lv), *pad, cv2.BORDER_CONSTANT, value=127)
         kps, desc = self._akaze.detectAndCompute(img, None)
         if desc is None or not kps:
             return empty_features()
@@ -71,5 +84,17 @@ class FeatureExtractor:
             strongest = np.argsort([-kp.response for kp in kps], kind='stable')[:self._max]
             kps = [kps[i] for i in strongest]
             desc = desc[strongest]
-        pts = np.array([kp.pt for kp in kps], np.float32) + np.array([c0 - _MARGIN, r0 - _MARGIN], np.float32)
+        pts = np.array([kp.pt for kp in kps], np.float32)
+        pts -= np.array([pad[2], pad[0]], np.float32)       # into the pooled crop
+        pts = (pts + 0.5) * f - 0.5                          # pooled pixel -> cell centres
+        pts += np.array([b0, a0], np.float32)
         return Features(pts, desc, int(np.count_nonzero(levels)))
+
+
+def _maxpool(levels: np.ndarray, f: int) -> np.ndarray:
+    """Levels pooled by an integer factor, keeping the highest level (a wall wins a block)."""
+    h, w = levels.shape
+    H, W = -(-h // f), -(-w // f)
+    padded = np.zeros((H * f, W * f), levels.dtype)
+    padded[:h, :w] = levels
+    return padded.reshape(H, f, W, f).max(axis=(1, 3))

@@ -101,7 +101,7 @@ class MapMerger:
     def __init__(self, config: Optional[MergeConfig] = None):
         self.config = config or MergeConfig()
         c = self.config
-        self._extract = FeatureExtractor(c.akaze_threshold, c.max_features)
+        self._extract = FeatureExtractor(c.akaze_threshold, c.max_features, c.feature_cells)
         # AKAZE, matching, warping and most numpy work release the GIL, so threads use every
         # core without copying grids between processes.
         self._pool = ThreadPoolExecutor(max_workers=c.workers or os.cpu_count() or 1,
