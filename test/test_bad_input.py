@@ -1,0 +1,206 @@
+#!/usr/bin/env python3
+"""rostest: the merger node facing a map that does not belong and maps that are malformed.
+
+tb3_0 and tb3_1 carry overlapping pieces of the Intel map (known poses). tb3_2 carries the AWS
+small house, another building: it must never be placed (no TF, diagnostics "not merged") and
+must leave the merged map exactly as tb3_0 + tb3_1 made it. Then tb3_1 publishes malformed
+maps: the node must refuse each one, say why (diagnostics and an ERROR log naming tb3_1), keep
+running, and keep the merged map unchanged; a valid map afterwards clears the error.
+"""
+import math
+import os
+import sys
+import threading
+import time
+import unittest
+
+import numpy as np
+import rosnode
+import rospy
+import rostest
+import tf2_ros
+from diagnostic_msgs.msg import DiagnosticStatus
+from rosgraph_msgs.msg import Log
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from test_merge_node import (Listener, RobotPlayer, compare_with_truth,  # noqa: E402
+                             data_file, expected_canvas, fmt_pose, lookup, make_pieces,
+                             union_mask_of, wait_until)
+from multi_map_merge.mapio import load_map  # noqa: E402
+from multi_map_merge.ros_adapter import grid_to_msg  # noqa: E402
+from multi_map_merge.transforms import pose_distance  # noqa: E402
+
+PKG = 'multi_map_merge'
+POSES = [(0.5, 1.0, math.radians(-30.0)), (-2.0, 3.0, math.radians(150.0))]
+ESTIMATION_PERIOD = 0.5   # s, estimation_rate in bad_input.test
+
+
+def same_map(a, b):
+    """True when two OccupancyGrid messages describe the same grid (geometry and cells)."""
+    return (a.info.width == b.info.width and a.info.height == b.info.height
+            and abs(a.info.resolution - b.info.resolution) < 1e-9
+            and abs(a.info.origin.position.x - b.info.origin.position.x) < 1e-9
+            and abs(a.info.origin.position.y - b.info.origin.position.y) < 1e-9
+            and np.array_equal(np.asarray(a.data), np.asarray(b.data)))
+
+
+class TestBadInput(unittest.TestCase):
+
+    @classmethod
+    def setUpClass(cls):
+        rospy.init_node('test_bad_input', anonymous=True)
+        cls.world = load_map(data_file('intel.yaml'))
+        cls.pieces = make_pieces(cls.world, 2, POSES)
+        cls.T_world_map = cls.pieces[0][1]
+        cls.T_true = [np.linalg.inv(cls.T_world_map) @ T for _, T in cls.pieces]
+        cls.union = union_mask_of(cls.world, cls.pieces)
+        cls.house = load_map(data_file('aws_small_house.yaml'))
+        cls.buf = tf2_ros.Buffer(rospy.Duration(30.0))
+        cls.tfl = tf2_ros.TransformListener(cls.buf)
+        cls.listen = Listener()
+        cls.logs = []
+        cls.log_lock = threading.Lock()
+        rospy.Subscriber('/rosout', Log, cls._on_log, queue_size=100)
+        cls.player = RobotPlayer(['tb3_0', 'tb3_1'])
+        cls.two_robot_map = None
+
+    @classmethod
+    def _on_log(cls, msg):
+        if msg.name == '/map_merge':
+            with cls.log_lock:
+                cls.logs.append(msg)
+
+    @classmethod
+    def tearDownClass(cls):
+        cls.player._stop = True
+
+    def _status(self, robot, after=0.0):
+        return self.listen.status(robot, after)
+
+    def test_1_two_robots_merge(self):
+        t0 = time.time()
+        for k, (g, _) in enumerate(self.pieces):
+            self.player.publish('tb3_%d' % k, g)
+        ok = wait_until(lambda: (self._status('tb3_1', t0) or (None, {}))[1].get('merged') == 'true', 40.0)
+        self.assertTrue(ok, 'tb3_1 was not merged with tb3_0')
+        T = lookup(self.buf, 'map', 'tb3_1/map', 5.0)
+        self.assertIsNotNone(T)
+        d, a = pose_distance(T, self.T_true[1])
+        print('TF map -> tb3_1/map %s, true %s: error %.4f m, %.3f deg'
+              % (fmt_pose(T), fmt_pose(self.T_true[1]), d, math.degrees(a)))
+        self.assertLess(d, 0.10)
+        self.assertLess(math.degrees(a), 1.0)
+        t1 = time.time()
+        msg = wait_until(lambda: self.listen.map_after(t1), 10.0)
+        self.assertIsNotNone(msg, 'no /map')
+        # the two-robot merge is right (so "unchanged" below means right, too)
+        (x0, y0, w, h), _ = expected_canvas(self.pieces, self.T_true)
+        self.assertLessEqual(abs(msg.info.width - w), 4, (msg.info.width, w))
+        self.assertLessEqual(abs(msg.info.height - h), 4, (msg.info.height, h))
+        sc = compare_with_truth(msg, self.world, self.T_world_map, self.union)
+        print('two-robot merge vs truth: %s' % sc)
+        self.assertGreaterEqual(sc['occ_precision'], 0.95, sc)
+        self.assertLessEqual(sc['free_wrong'], 0.02, sc)
+        self.assertLessEqual(sc['outside'], 0.01, sc)
+        self.assertGreaterEqual(sc['recall'], 0.97, sc)
+        self.assertLess(abs(sc['known'] - sc['union_known']) / float(sc['union_known']), 0.05, sc)
+        type(self).two_robot_map = msg
+
+    def test_2_foreign_map_is_not_merged(self):
+        self.assertIsNotNone(self.two_robot_map, 'test_1 did not run')
+        self.player.add('tb3_2')
+        t0 = time.time()
+        self.player.publish('tb3_2', self.house)
+        # the node found tb3_2 and tried to match it ...
+        st = wait_until(lambda: (lambda s: s if s and 'last_result' in s[1] else None)(
+            self._status('tb3_2', t0)), 30.0)
+        self.assertTrue(st, 'the merger never tried tb3_2')
+        print('tb3_2 first attempt: %s %s' % (st[0].message, st[1]))
+        # ... and, many estimation cycles later, still has not placed it
+        t_try = time.time()
+        self.assertIsNone(lookup(self.buf, 'map', 'tb3_2/map', 8 * ESTIMATION_PERIOD + 2.0),
+                          'tb3_2 (another building) got a TF into map')
+        st = wait_until(lambda: self._status('tb3_2', t_try), 5.0)
+        self.assertTrue(st)
+        s, kv = st
+        print('tb3_2 later: %s %s' % (s.message, kv))
+        self.assertEqual(kv.get('merged'), 'false')
+        self.assertEqual(s.level, DiagnosticStatus.WARN)
+        self.assertTrue(s.message.startswith('not merged'), s.message)
+        self.assertNotEqual(kv.get('last_result'), 'accepted')
+        # tb3_0 and tb3_1 are still placed, so the TF tree itself works
+        self.assertIsNotNone(lookup(self.buf, 'map', 'tb3_1/map', 2.0))
+        # the merged map is exactly the two-robot one
+        t1 = time.time()
+        msg = wait_until(lambda: self.listen.map_after(t1), 10.0)
+        self.assertIsNotNone(msg)
+        self.assertTrue(same_map(msg, self.two_robot_map),
+                        'tb3_2 changed /map: %dx%d -> %dx%d' % (
+                            self.two_robot_map.info.width, self.two_robot_map.info.height,
+                            msg.info.width, msg.info.height))
+
+    def _malformed(self, kind):
+        """A map message for tb3_1 that is wrong in one way."""
+        g = self.pieces[1][0]
+        msg = grid_to_msg(g, rospy.Time.now(), 'tb3_1/map')
+        if kind == 'length':
+            msg.data = msg.data[:-7]
+        elif kind == 'width0':
+            msg.info.width = 0
+        elif kind == 'nan_origin':
+            msg.info.origin.position.x = float('nan')
+        elif kind == 'resolution0':
+            msg.info.resolution = 0.0
+        elif kind == 'value120':
+            d = msg.data.copy()
+            d[len(d) // 2] = 120
+            msg.data = d
+        return msg
+
+    def test_3_malformed_maps_are_refused(self):
+        self.assertIsNotNone(self.two_robot_map, 'test_1 did not run')
+        cases = [('length', 'data length'), ('width0', 'empty grid'), ('nan_origin', 'origin is not finite'),
+                 ('resolution0', 'resolution must be'), ('value120', 'outside -1..100')]
+        pub = self.player.pubs['tb3_1']
+        for kind, reason in cases:
+            t0 = time.time()
+            pub.publish(self._malformed(kind))
+
+            def refused():
+                st = self._status('tb3_1', t0)
+                return st if st and st[0].level == DiagnosticStatus.ERROR and reason in st[0].message else None
+            st = wait_until(refused, 10.0)
+            self.assertTrue(st, '%s: diagnostics of tb3_1 do not report "%s": %s'
+                            % (kind, reason, self._status('tb3_1')))
+            print('%s -> diagnostics: %s' % (kind, st[0].message))
+
+            def logged():
+                with self.log_lock:
+                    return [m for m in self.logs if m.level == Log.ERROR and 'tb3_1' in m.msg and reason in m.msg]
+            lg = wait_until(logged, 5.0)
+            self.assertTrue(lg, '%s: no ERROR log naming tb3_1 and "%s"' % (kind, reason))
+            print('%s -> log: %s' % (kind, lg[-1].msg))
+            # tb3_1 keeps its last valid map and placement
+            self.assertEqual(st[1].get('merged'), 'true')
+
+        # the node is alive, still publishing, and the merged map has not changed
+        self.assertTrue(rosnode.rosnode_ping('/map_merge', max_count=1))
+        t1 = time.time()
+        msg = wait_until(lambda: self.listen.map_after(t1), 10.0)
+        self.assertIsNotNone(msg, 'no /map after the malformed inputs')
+        self.assertTrue(same_map(msg, self.two_robot_map), 'malformed input changed /map')
+        self.assertTrue(wait_until(lambda: self._status('tb3_0', t1), 5.0), 'diagnostics stopped')
+        self.assertIsNotNone(lookup(self.buf, 'map', 'tb3_1/map', 2.0))
+
+    def test_4_valid_map_clears_error(self):
+        self.assertIsNotNone(self.two_robot_map, 'test_1 did not run')
+        t0 = time.time()
+        self.player.publish('tb3_1', self.pieces[1][0])
+        st = wait_until(lambda: (lambda s: s if s and s[0].level == DiagnosticStatus.OK else None)(
+            self._status('tb3_1', t0)), 10.0)
+        self.assertTrue(st, 'tb3_1 still in error after a valid map: %s' % (self._status('tb3_1'),))
+        self.assertEqual(st[1].get('merged'), 'true')
+
+
+if __name__ == '__main__':
+    rostest.rosrun(PKG, 'bad_input', TestBadInput, sys.argv)
