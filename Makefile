@@ -47,7 +47,8 @@ test: build
 	python3 -m pytest -q test/unit || rc=1; \
 	for t in test/*.test; do \
 	  echo "== rostest $$t"; rostest --text multi_map_merge $$(basename $$t) > $(WS)/rostest.log 2>&1; r=$$?; \
-	  sed -n '/SUMMARY/,$$p' $(WS)/rostest.log; [ $$r -eq 0 ] || { rc=1; tail -60 $(WS)/rostest.log; }; done; \
+	  grep -E 'RESULT:|TESTS:|ERRORS:|FAILURES:' $(WS)/rostest.log | sed 's/\x1b\[[0-9;]*m//g'; \
+	  [ $$r -eq 0 ] || { rc=1; tail -60 $(WS)/rostest.log; }; done; \
 	exit $$rc
 
 demo: build

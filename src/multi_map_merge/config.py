@@ -31,7 +31,7 @@ class MergeConfig:
     match_ratio: float = 0.8                 # Lowe's ratio, only to score reliability
     # --- RANSAC and reliability ---
     ransac_threshold: float = 3.0            # cells
-    ransac_iterations: int = 3000
+    ransac_iterations: int = 15000           # two-point samples (cheap: most fail the length test)
     ransac_hypotheses: int = 8               # distinct transforms verified per pair
     min_matches: int = 10
     min_inliers: int = 10

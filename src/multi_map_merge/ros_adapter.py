@@ -374,6 +374,43 @@ def wait_for_map(topic: str, timeout: float) -> Optional[Grid]:
     return grid_from_msg(msg, 10 ** 9)
 
 
+def wait_for_master(timeout: float) -> bool:
+    """True once a ROS master answers at ROS_MASTER_URI (within ``timeout`` seconds)."""
+    import rosgraph
+    end = time.time() + timeout
+    while time.time() < end:
+        if rosgraph.is_master_online():
+            return True
+        time.sleep(0.2)
+    return False
+
+
+def wait_for_merge(robots: Sequence[str], timeout: float, settle: float = 0.0) -> Dict[str, Dict[str, str]]:
+    """Per-robot key/values of the merger's /diagnostics once every robot in ``robots`` is
+    merged and ``settle`` more seconds have passed (or at ``timeout``)."""
+    latest: Dict[str, Dict[str, str]] = {}
+
+    def on_diag(msg):
+        for s in msg.status:
+            if s.hardware_id:
+                d = {kv.key: kv.value for kv in s.values}
+                d['message'] = s.message
+                latest[s.hardware_id] = d
+
+    sub = rospy.Subscriber('/diagnostics', DiagnosticArray, on_diag)
+    end = time.time() + timeout
+    merged_since = None
+    while time.time() < end and not rospy.is_shutdown():
+        done = all(latest.get(r, {}).get('merged') == 'true' for r in robots)
+        if done and merged_since is None:
+            merged_since = time.time()
+        if done and time.time() - merged_since >= settle:
+            break
+        time.sleep(0.2)
+    sub.unregister()
+    return dict(latest)
+
+
 def init_node(name: str) -> None:
     rospy.init_node(name, anonymous=True)
 

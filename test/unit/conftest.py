@@ -1,0 +1,33 @@
+"""Shared helpers for the core's unit tests (no ROS master needed)."""
+import math
+import os
+import sys
+
+import numpy as np
+import pytest
+
+REPO = os.path.abspath(os.path.join(os.path.dirname(__file__), '..', '..'))
+sys.path.insert(0, os.path.join(REPO, 'src'))
+DATA = os.path.join(REPO, 'test', 'data')
+SHARED = os.path.abspath(os.path.join(REPO, '..', 'shared', 'data'))
+
+from multi_map_merge.transforms import pose_distance  # noqa: E402
+
+
+@pytest.fixture
+def shared_data():
+    """../shared/data, or skip: it is beside CI's clone but not part of the project."""
+    if not os.path.isdir(SHARED):
+        pytest.skip('../shared/data is absent: real multi-robot maps not available here')
+    return SHARED
+
+
+def pose_error(T_est, T_true):
+    """(metres, degrees) between two 3x3 poses."""
+    d, a = pose_distance(T_est, T_true)
+    return d, math.degrees(a)
+
+
+def truth(T_ref, T_k):
+    """Pose of piece k's frame in the reference piece's frame."""
+    return np.linalg.inv(T_ref) @ T_k

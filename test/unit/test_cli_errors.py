@@ -1,0 +1,72 @@
+import os
+import shutil
+
+import pytest
+
+from multi_map_merge import cli
+from conftest import DATA
+
+
+@pytest.fixture
+def good(tmp_path):
+    for n in ('intel.yaml', 'intel.pgm'):
+        shutil.copy(os.path.join(DATA, n), tmp_path / n)
+    return str(tmp_path / 'intel.yaml')
+
+
+def run(capsys, args):
+    code = cli.main(args)
+    return code, capsys.readouterr().err
+
+
+def write(tmp_path, name, text):
+    p = tmp_path / name
+    p.write_text(text)
+    return str(p)
+
+
+def test_missing_yaml(tmp_path, capsys, good):
+    code, err = run(capsys, [good, str(tmp_path / 'gone.yaml'), '-o', str(tmp_path / 'o.yaml')])
+    assert code == 2 and 'gone.yaml' in err
+
+
+def test_yaml_without_image(tmp_path, capsys, good):
+    bad = write(tmp_path, 'noimg.yaml', 'resolution: 0.05\norigin: [0, 0, 0]\n')
+    code, err = run(capsys, [good, bad, '-o', str(tmp_path / 'o.yaml')])
+    assert code == 2 and 'noimg.yaml' in err
+
+
+def test_missing_or_garbage_pgm(tmp_path, capsys, good):
+    bad = write(tmp_path, 'nopgm.yaml', 'image: nothere.pgm\nresolution: 0.05\norigin: [0, 0, 0]\n')
+    code, err = run(capsys, [good, bad, '-o', str(tmp_path / 'o.yaml')])
+    assert code == 2 and 'nopgm.yaml' in err
+    (tmp_path / 'junk.pgm').write_bytes(b'this is no image')
+    bad = write(tmp_path, 'junk.yaml', 'image: junk.pgm\nresolution: 0.05\norigin: [0, 0, 0]\n')
+    code, err = run(capsys, [good, bad, '-o', str(tmp_path / 'o.yaml')])
+    assert code == 2 and 'junk.yaml' in err
+
+
+@pytest.mark.parametrize('res', ['0', '-1', '.nan'])
+def test_bad_resolution(tmp_path, capsys, good, res):
+    shutil.copy(os.path.join(DATA, 'intel.pgm'), tmp_path / 'r.pgm')
+    bad = write(tmp_path, 'r.yaml', 'image: r.pgm\nresolution: %s\norigin: [0, 0, 0]\n' % res)
+    code, err = run(capsys, [good, bad, '-o', str(tmp_path / 'o.yaml')])
+    assert code == 2 and 'r.yaml' in err and 'resolution' in err
+
+
+def test_nan_origin(tmp_path, capsys, good):
+    shutil.copy(os.path.join(DATA, 'intel.pgm'), tmp_path / 'n.pgm')
+    bad = write(tmp_path, 'n.yaml', 'image: n.pgm\nresolution: 0.05\norigin: [.nan, 0, 0]\n')
+    code, err = run(capsys, [good, bad, '-o', str(tmp_path / 'o.yaml')])
+    assert code == 2 and 'n.yaml' in err and 'origin' in err
+
+
+def test_duplicate_stems_and_unknown_reference(tmp_path, capsys, good):
+    os.makedirs(tmp_path / 'b')
+    for n in ('intel.yaml', 'intel.pgm'):
+        shutil.copy(os.path.join(DATA, n), tmp_path / 'b' / n)
+    code, err = run(capsys, [good, str(tmp_path / 'b' / 'intel.yaml'), '-o', str(tmp_path / 'o.yaml')])
+    assert code == 2 and 'intel' in err
+    code, err = run(capsys, [good, '--reference', 'nobody', '-o', str(tmp_path / 'o.yaml')])
+    assert code == 2 and 'nobody' in err
+    assert not os.path.exists(tmp_path / 'o.yaml')

@@ -1,0 +1,137 @@
+"""Behaviours of the merger beyond one estimate: chains, refusals, restarts, persistence."""
+import os
+
+import numpy as np
+import pytest
+
+from multi_map_merge.config import MergeConfig
+from multi_map_merge.grid import Grid, known_bbox
+from multi_map_merge.mapio import load_map
+from multi_map_merge.merger import MapMerger
+from multi_map_merge.persist import load_state, save_state
+from multi_map_merge.synth import cut_piece
+from conftest import DATA, pose_error, truth
+
+
+@pytest.fixture(scope='module')
+def intel():
+    return load_map(os.path.join(DATA, 'intel.yaml'))
+
+
+def strip_pieces(w, poses):
+    """Three pieces along the map's width: A-B and B-C overlap, A-C do not."""
+    r0, r1, c0, c1 = known_bbox(w.levels())
+    width = c1 - c0
+    rects = [(r0, r1, c0, c0 + int(0.45 * width)),
+             (r0, r1, c0 + int(0.3 * width), c0 + int(0.75 * width)),
+             (r0, r1, c0 + int(0.6 * width), c1)]
+    return [cut_piece(w, r, p) for r, p in zip(rects, poses)]
+
+
+def test_chain_merge_of_robot_that_misses_the_reference(intel):
+    ps = strip_pieces(intel, [(0, 0, 0), (3, -2, 2.0), (-4, 1, -2.5)])
+    m = MapMerger(MergeConfig(reference_robot='a'))
+    for n, (g, _) in zip('abc', ps):
+        m.update_map(n, g)
+    m.estimate()
+    P = m.placements()
+    assert P['c'].via == 'b' and P['c'].path == ('a', 'b', 'c')
+    d, a = pose_error(P['c'].T, truth(ps[0][1], ps[2][1]))
+    assert d < 0.1 and a < 1.0
+
+
+def test_disjoint_pieces_are_never_merged(intel):
+    """Pairs with no true overlap: disjoint parts of one building, and another building."""
+    r0, r1, c0, c1 = known_bbox(intel.levels())
+    cm, rm = (c0 + c1) // 2, (r0 + r1) // 2
+    quads = [(r0, rm - 5, c0, cm - 5), (r0, rm - 5, cm + 5, c1), (rm + 5, r1, c0, cm - 5), (rm + 5, r1, cm + 5, c1)]
+    house = load_map(os.path.join(DATA, 'aws_small_house.yaml'))
+    maze = load_map(os.path.join(DATA, 'tb3_dans_maze', 'tb3_1_map.yaml'))
+    others = [house, maze]
+    false_merges = []
+    for i, q in enumerate(quads):
+        for j in range(i + 1, len(quads)):
+            for seed, pose in enumerate([(1, 2, 0.5), (-3, 0, 3.0)]):
+                m = MapMerger()
+                m.update_map('a', cut_piece(intel, q, (0, 0, 0))[0])
+                m.update_map('b', cut_piece(intel, quads[j], pose)[0])
+                m.estimate()
+                if 'b' in m.placements():
+                    false_merges.append((i, j, seed))
+        for k, o in enumerate(others):
+            m = MapMerger()
+            m.update_map('a', cut_piece(intel, q, (0, 0, 0))[0])
+            m.update_map('b', o)
+            m.estimate()
+            if 'b' in m.placements():
+                false_merges.append((i, 'other', k))
+    assert false_merges == []
+
+
+def test_map_restart_forgets_transform_and_stale_cells(intel):
+    ps = strip_pieces(intel, [(0, 0, 0), (3, -2, 2.0), (-4, 1, -2.5)])
+    m = MapMerger()
+    m.update_map('a', ps[0][0])
+    m.update_map('b', ps[1][0])
+    m.estimate()
+    assert 'b' in m.placements()
+    before = m.compose()
+    small = Grid(ps[1][0].data[:60, :60].copy(), 0.05, ps[1][0].origin)   # gmapping reset
+    event = m.update_map('b', small)
+    assert event and 'restarted' in event
+    assert 'b' not in m.placements()
+    after = m.compose()
+    assert (after.data >= 0).sum() < (before.data >= 0).sum()   # b's old cells are gone
+    assert (after.data >= 0).sum() == (ps[0][0].data >= 0).sum()
+
+
+def test_growth_is_not_a_restart(intel):
+    g, _ = cut_piece(intel, (100, 300, 100, 300), (0, 0, 0))
+    m = MapMerger()
+    assert m.update_map('a', g) is None
+    bigger = Grid(np.pad(g.data, ((20, 0), (0, 20)), constant_values=-1), g.resolution,
+                  (g.origin[0], g.origin[1] - 1.0, 0.0))
+    assert m.update_map('a', bigger) is None
+
+
+def test_transforms_survive_a_restart_of_the_merger(tmp_path, intel):
+    ps = strip_pieces(intel, [(0, 0, 0), (3, -2, 2.0), (-4, 1, -2.5)])
+    m = MapMerger()
+    for n, (g, _) in zip('abc', ps):
+        m.update_map(n, g)
+    m.estimate()
+    f = str(tmp_path / 'state' / 'transforms.yaml')
+    save_state(f, m.export_state())
+    m2 = MapMerger()
+    assert m2.restore_state(load_state(f)) == len(m.export_state()['edges'])
+    for n, (g, _) in zip('abc', ps):
+        m2.update_map(n, g)
+    events = m2._verify_restored(m2._snapshot()[1])
+    assert all('verified' in e for e in events) and len(events) >= 2
+    # a saved link that the grids contradict is rejected, not used
+    st = m.export_state()
+    for e in st['edges']:
+        e['x'] += 3.0
+    m3 = MapMerger()
+    m3.restore_state(st)
+    for n, (g, _) in zip('abc', ps):
+        m3.update_map(n, g)
+    events = m3._verify_restored(m3._snapshot()[1])
+    assert events and all('REJECTED' in e for e in events)
+    m3.estimate()   # and fresh estimation still places everyone right
+    for i, n in ((1, 'b'), (2, 'c')):
+        d, a = pose_error(m3.placements()[n].T, truth(ps[0][1], ps[i][1]))
+        assert d < 0.1 and a < 1.0
+
+
+def test_keeps_most_reliable_transform(intel):
+    ps = strip_pieces(intel, [(0, 0, 0), (3, -2, 2.0), (-4, 1, -2.5)])
+    m = MapMerger()
+    m.update_map('a', ps[0][0])
+    m.update_map('b', ps[1][0])
+    m.estimate()
+    kept = m.placements()['b']
+    # the same map again (new version): the estimate is no better, so nothing moves
+    m.update_map('b', Grid(ps[1][0].data.copy(), 0.05, ps[1][0].origin))
+    m.estimate()
+    assert m.placements()['b'] is kept
