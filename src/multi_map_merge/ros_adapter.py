@@ -43,6 +43,11 @@ def grid_from_msg(msg, max_cells: int) -> Grid:
     """Validated Grid from a (numpy_msg) OccupancyGrid; raises GridError with the reason."""
     info = msg.info
     o = info.origin
+    q = (o.orientation.x, o.orientation.y, o.orientation.z, o.orientation.w)
+    # atan2 of infinities is finite, so the quaternion itself must be checked. An all-zero
+    # quaternion is what an unset orientation looks like in ROS: taken as yaw 0.
+    if not all(math.isfinite(v) for v in q):
+        raise GridError('origin orientation is not finite: %r' % (q,))
     yaw = quaternion_yaw(o.orientation)
     data = np.asarray(msg.data)
     return make_grid(data, int(info.width), int(info.height), float(info.resolution),
