@@ -135,3 +135,17 @@ def test_keeps_most_reliable_transform(intel):
     m.update_map('b', Grid(ps[1][0].data.copy(), 0.05, ps[1][0].origin))
     m.estimate()
     assert m.placements()['b'] is kept
+
+
+def test_map_of_another_resolution_is_rescaled_not_rejected(intel):
+    from multi_map_merge.grid import rescale
+    ps = strip_pieces(intel, [(0, 0, 0), (3, -2, 2.0), (-4, 1, -2.5)])
+    coarse = rescale(ps[1][0], 0.1)                    # robot b maps at 10 cm
+    m = MapMerger()
+    m.update_map('a', ps[0][0])
+    m.update_map('b', coarse)
+    m.estimate()
+    assert 'b' in m.placements()
+    d, a = pose_error(m.placements()['b'].T, truth(ps[0][1], ps[1][1]))
+    assert d < 0.15 and a < 1.0                        # within about a coarse cell
+    assert m.compose().resolution == pytest.approx(0.05)
