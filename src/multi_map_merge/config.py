@@ -42,6 +42,10 @@ class MergeConfig:
     min_agreement: float = 0.8               # wall agreement 0..1 in the overlap
     min_overlap_cells: int = 400
     agreement_tolerance: int = 2             # cells
+    # --- prior knowledge of where robots started (optional, like m-explore's known_init_poses) ---
+    initial_poses: Dict[str, List[float]] = field(default_factory=dict)  # robot: [x, y, yaw]
+    initial_pose_tolerance: List[float] = field(default_factory=lambda: [1.0, 0.35])  # m, rad
+    trust_initial_poses: bool = False        # place robots with no verified link at their prior
     # --- speed ---
     workers: int = 0                         # estimation threads; 0 = one per core
     # --- persistence (node only) ---
@@ -61,6 +65,16 @@ class MergeConfig:
                     v = int(v)
                 elif isinstance(default, float):
                     v = float(v)
+                elif f.name == 'initial_pose_tolerance':
+                    v = [float(x) for x in v]
+                    if len(v) != 2:
+                        raise ValueError('initial_pose_tolerance needs [metres, radians]')
+                elif isinstance(default, dict):
+                    if not isinstance(v, dict):
+                        raise ValueError('%s must be a mapping robot: [x, y, yaw]' % f.name)
+                    v = {str(k): [float(x) for x in p] for k, p in v.items()}
+                    if any(len(p) != 3 for p in v.values()):
+                        raise ValueError('%s: every pose needs [x, y, yaw]' % f.name)
                 elif isinstance(default, list):
                     v = [str(x) for x in (v if isinstance(v, (list, tuple)) else str(v).split())]
                 else:

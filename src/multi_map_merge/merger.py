@@ -31,7 +31,7 @@ from .features import FeatureExtractor, Features
 from .grid import Grid, rescale
 from .merge import Lattice, Patch, composite, lattice_for, warp_patch
 from .refine import WallField, occupied_points, refine
-from .transforms import image_to_pose, pose_to_image, se2, xyyaw
+from .transforms import image_to_pose, pose_distance, pose_to_image, se2, xyyaw
 
 
 @dataclass
@@ -93,6 +93,7 @@ class RobotStatus:
     last_attempt: Optional[est.PairEstimate] = None
     last_attempt_with: str = ''
     error: str = ''
+    linked_to: Tuple[str, ...] = ()   # robots it has verified links with
 
 
 class MapMerger:
@@ -254,7 +255,8 @@ class MapMerger:
                     if n in (a, b) and (last is None or e.extra.get('t', 0) > last.extra.get('t', 0)):
                         last, other = e, (b if a == n else a)
                 pl = self._placements.get(n)
-                out[n] = RobotStatus(pl is not None, n == ref, pl, last, other, self._errors.get(n, ''))
+                links = tuple(sorted({b if a == n else a for (a, b) in self._edges if n in (a, b)}))
+                out[n] = RobotStatus(pl is not None, n == ref, pl, last, other, self._errors.get(n, ''), links)
             return out
 
     def export_state(self) -> Dict:
@@ -391,7 +393,10 @@ class MapMerger:
             good_inl = int(est._inliers(h.A, src[unique], dst[unique], th2).sum()) if r.matches else 0
             h.reliability = good_inl / float(max(1, r.matches))
             h.agreement, h.overlap = est.agreement(lv_a, lv_b, h.A, c.agreement_tolerance)
-            if h.overlap < c.min_overlap_cells:
+            contradiction = self._contradicts_prior(pa, ch, h.A)
+            if contradiction:
+                h.reason = contradiction
+            elif h.overlap < c.min_overlap_cells:
                 h.reason = 'overlap %d cells < %d' % (h.overlap, c.min_overlap_cells)
             elif h.agreement < c.min_agreement:
                 h.reason = 'grids disagree: agreement %.2f < %.2f' % (h.agreement, c.min_agreement)
@@ -410,6 +415,22 @@ class MapMerger:
             r.reason = 'RANSAC found no consistent transform'
             return r
         return best
+
+    def _contradicts_prior(self, pa: RobotMap, ch: RobotMap, A: np.ndarray) -> str:
+        """Why the link contradicts the configured initial poses ('' when it does not, or
+        when either robot has none). With priors, of two look-alike placements (a building
+        of identical halves) only the one near where the robots started can be accepted."""
+        priors = self.config.initial_poses
+        if pa.name not in priors or ch.name not in priors:
+            return ''
+        T = image_to_pose(A, pa.grid.resolution, pa.grid.origin, ch.grid.resolution, ch.grid.origin)
+        P = np.linalg.inv(se2(*priors[pa.name])) @ se2(*priors[ch.name])
+        d, a = pose_distance(T, P)
+        tol_d, tol_a = self.config.initial_pose_tolerance
+        if d > tol_d or a > tol_a:
+            return ('contradicts initial poses: %.2f m, %.1f deg from them (tolerance %.2f m, %.1f deg)'
+                    % (d, math.degrees(a), tol_d, math.degrees(tol_a)))
+        return ''
 
     def _refined(self, pa: RobotMap, ch: RobotMap, A: np.ndarray) -> np.ndarray:
         c = self.config
@@ -453,11 +474,17 @@ class MapMerger:
                                     best[u].path + (v,), time.time())
                 if v not in frontier:
                     frontier.append(v)
+        priors = c.initial_poses
+        if c.trust_initial_poses and ref in priors:
+            for n in maps:
+                if n not in best and n in priors:
+                    T = np.linalg.inv(se2(*priors[ref])) @ se2(*priors[n])
+                    best[n] = Placement(T, 0.0, 0.0, 0, 'initial_pose', (ref, n), time.time())
         new = {}
         for n, pl in best.items():
             prev = old.get(n)
-            still_linked = prev is not None and all(
-                (p, q) in edges or (q, p) in edges for p, q in zip(prev.path, prev.path[1:]))
+            still_linked = prev is not None and (prev.via == 'initial_pose' or all(
+                (p, q) in edges or (q, p) in edges for p, q in zip(prev.path, prev.path[1:])))
             if prev is not None and still_linked and pl.reliability <= prev.reliability + c.replace_margin:
                 new[n] = prev
                 continue

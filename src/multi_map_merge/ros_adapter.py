@@ -269,7 +269,8 @@ class MergeNode:
             s = DiagnosticStatus()
             s.name = 'multi_map_merge: %s' % robot
             s.hardware_id = robot
-            kv = [('merged', str(st.merged).lower()), ('reference', str(st.reference).lower())]
+            kv = [('merged', str(st.merged).lower()), ('reference', str(st.reference).lower()),
+                  ('linked_to', ' '.join(st.linked_to) or '-')]
             if st.placement is not None:
                 pl = st.placement
                 x, y, yaw = xyyaw(pl.T)
@@ -288,6 +289,10 @@ class MergeNode:
                 s.level, s.message = DiagnosticStatus.OK, 'reference map'
             elif st.merged:
                 s.level, s.message = DiagnosticStatus.OK, 'merged via %s' % st.placement.via
+            elif st.linked_to:
+                s.level = DiagnosticStatus.WARN
+                s.message = ('not merged: linked to %s, but no chain of verified links to the '
+                             'reference yet' % ', '.join(st.linked_to))
             else:
                 s.level = DiagnosticStatus.WARN
                 s.message = 'not merged' + (': ' + st.last_attempt.reason if st.last_attempt else '')
