@@ -130,12 +130,11 @@ class MergeNode:
             except ValueError as e:
                 rospy.logerr('multi_map_merge: %s (starting without saved transforms)', e)
             self._saved_version = self.merger.state_version
-        if config.robots:
-            for r in config.robots:
-                self._subscribe(r.strip('/'))
-        else:
-            self._discover(None)
-            rospy.Timer(rospy.Duration(1.0 / config.discovery_rate), self._discover)
+        self._gone: Dict[str, bool] = {}
+        for r in config.robots:
+            self._subscribe(r.strip('/'))
+        self._discover(None)
+        rospy.Timer(rospy.Duration(1.0 / config.discovery_rate), self._discover)
         rospy.Timer(rospy.Duration(1.0 / config.merge_rate), self._publish_map)
         rospy.Timer(rospy.Duration(1.0 / config.tf_rate), self._publish_tf)
         rospy.Timer(rospy.Duration(1.0), self._publish_diagnostics)
@@ -148,6 +147,9 @@ class MergeNode:
 
     # -- inputs
     def _discover(self, _event) -> None:
+        self._watch()
+        if self.cfg.robots:
+            return
         try:
             topics = rospy.get_published_topics()
         except Exception as e:  # master gone for a moment: try again next time
@@ -159,6 +161,20 @@ class MergeNode:
                 continue
             if fnmatch.fnmatch(parts[0], self.cfg.robot_namespace_pattern):
                 self._subscribe(parts[0])
+
+    def _watch(self) -> None:
+        """Log a robot whose map publisher went away, and its return. Its last map and
+        transform stay in the merge: what it mapped is still true."""
+        with self._lock:
+            subs = dict(self._subs)
+        for robot, (map_sub, _) in subs.items():
+            gone = map_sub.get_num_connections() == 0 and robot in self._latest
+            if gone and not self._gone.get(robot):
+                rospy.logwarn('multi_map_merge: robot %s vanished (no publisher of %s): keeping its '
+                              'last map and transform', robot, map_sub.name)
+            elif not gone and self._gone.get(robot):
+                rospy.loginfo('multi_map_merge: robot %s is back', robot)
+            self._gone[robot] = gone
 
     def _subscribe(self, robot: str) -> None:
         with self._lock:
@@ -270,7 +286,8 @@ class MergeNode:
             s.name = 'multi_map_merge: %s' % robot
             s.hardware_id = robot
             kv = [('merged', str(st.merged).lower()), ('reference', str(st.reference).lower()),
-                  ('linked_to', ' '.join(st.linked_to) or '-')]
+                  ('linked_to', ' '.join(st.linked_to) or '-'),
+                  ('publisher', 'gone' if self._gone.get(robot) else 'ok')]
             if st.placement is not None:
                 pl = st.placement
                 x, y, yaw = xyyaw(pl.T)

@@ -149,3 +149,24 @@ def test_map_of_another_resolution_is_rescaled_not_rejected(intel):
     d, a = pose_error(m.placements()['b'].T, truth(ps[0][1], ps[1][1]))
     assert d < 0.15 and a < 1.0                        # within about a coarse cell
     assert m.compose().resolution == pytest.approx(0.05)
+
+
+def test_others_merge_among_themselves_until_the_reference_links(intel):
+    ps = strip_pieces(intel, [(0, 0, 0), (3, -2, 2.0), (-4, 1, -2.5)])
+    house = load_map(os.path.join(DATA, 'aws_small_house.yaml'))   # the reference, elsewhere at first
+    m = MapMerger(MergeConfig(reference_robot='a'))
+    m.update_map('a', house)
+    m.update_map('b', ps[1][0])
+    m.update_map('c', ps[2][0])
+    m.estimate()
+    st = m.status()
+    assert set(m.placements()) == {'a'}
+    assert st['b'].linked_to == ('c',) and st['c'].linked_to == ('b',)
+    # the reference robot now maps the part that overlaps b: both are placed under it
+    m.update_map('a', ps[0][0])
+    events = m.estimate()
+    assert set(m.placements()) == {'a', 'b', 'c'}
+    assert any('c merged' in e for e in events)
+    for i, n in ((1, 'b'), (2, 'c')):
+        d, a = pose_error(m.placements()[n].T, truth(ps[0][1], ps[i][1]))
+        assert d < 0.1 and a < 1.0

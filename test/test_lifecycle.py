@@ -1,0 +1,147 @@
+#!/usr/bin/env python3
+"""rostest: a robot's life seen by the live merger (see lifecycle.test)."""
+import math
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+import unittest
+
+import numpy as np
+import rospy
+import rostest
+import tf2_ros
+import yaml
+from map_msgs.msg import OccupancyGridUpdate
+from rosgraph_msgs.msg import Log
+from rospy.numpy_msg import numpy_msg
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from test_merge_node import (Listener, RobotPlayer, data_file, lookup, make_pieces,  # noqa: E402
+                             wait_until)
+from multi_map_merge.grid import Grid  # noqa: E402
+from multi_map_merge.mapio import load_map  # noqa: E402
+from multi_map_merge.ros_adapter import NumpyGrid, grid_from_msg  # noqa: E402
+from multi_map_merge.transforms import pose_distance  # noqa: E402
+
+PKG = 'multi_map_merge'
+
+
+class TestLifecycle(unittest.TestCase):
+
+    @classmethod
+    def setUpClass(cls):
+        rospy.init_node('test_lifecycle', anonymous=True)
+        world = load_map(data_file('intel.yaml'))
+        cls.pieces = make_pieces(world, 2, [(0.5, 1.0, -0.5), (-2.0, 3.0, 2.6)])
+        cls.T_true = np.linalg.inv(cls.pieces[0][1]) @ cls.pieces[1][1]
+        cls.listen = Listener()
+        cls.logs, cls.log_lock = [], threading.Lock()
+        rospy.Subscriber('/rosout', Log, cls._on_log, queue_size=200)
+        cls.buf = tf2_ros.Buffer(rospy.Duration(30.0))
+        cls.tfl = tf2_ros.TransformListener(cls.buf)
+        cls.player = RobotPlayer(['tb3_0', 'tb3_1'])
+
+    @classmethod
+    def _on_log(cls, msg):
+        with cls.log_lock:
+            cls.logs.append(msg)
+
+    def logged(self, node, text, after):
+        with self.log_lock:
+            return [m for m in self.logs if m.name == node and text in m.msg and m.header.stamp.to_sec() >= after - 1]
+
+    def merged(self, robot, after):
+        st = self.listen.status(robot, after)
+        return st if st and st[1].get('merged') == 'true' else None
+
+    def test_1_life_of_a_robot(self):
+        t0 = time.time()
+        for r, (g, _) in zip(['tb3_0', 'tb3_1'], self.pieces):
+            self.player.publish(r, g)
+        self.assertTrue(wait_until(lambda: self.merged('tb3_1', t0), 40.0), 'tb3_1 never merged')
+        g0 = self.pieces[0][0]
+
+        # map_updates: write an occupied 6x6 block into tb3_0's map where it was unknown
+        rows, cols = np.nonzero(g0.data == -1)
+        k = next(i for i in range(len(rows)) if rows[i] > 10 and cols[i] > 10
+                 and (g0.data[rows[i]:rows[i] + 6, cols[i]:cols[i] + 6] == -1).all())
+        y, x = int(rows[k]), int(cols[k])
+        upd = numpy_msg(OccupancyGridUpdate)()
+        upd.header.frame_id = 'tb3_0/map'
+        upd.x, upd.y, upd.width, upd.height = x, y, 6, 6
+        upd.data = np.full(36, 100, np.int8)
+        pub = rospy.Publisher('/tb3_0/map_updates', numpy_msg(OccupancyGridUpdate), queue_size=1, latch=True)
+        time.sleep(1.0)
+        t1 = time.time()
+        pub.publish(upd)
+
+        def block_in_map():
+            msg = self.listen.map_after(t1)
+            if msg is None:
+                return None
+            m = grid_from_msg(msg, 10 ** 9)
+            # tb3_0 is the reference: the merged lattice is its own, shifted by whole cells
+            dc = int(round((g0.origin[0] - m.origin[0]) / m.resolution))
+            dr = int(round((g0.origin[1] - m.origin[1]) / m.resolution))
+            return (m.data[y + dr:y + dr + 6, x + dc:x + dc + 6] == 100).all() or None
+        self.assertTrue(wait_until(block_in_map, 10.0), 'the map update did not reach /map')
+
+        # gmapping restart of tb3_1: a small new map with a new origin
+        known_before = (grid_from_msg(self.listen.map_after(0), 10 ** 9).data >= 0).sum()
+        g1 = self.pieces[1][0]
+        small = Grid(g1.data[:60, :60].copy(), g1.resolution, (0.0, 0.0, 0.0), 'tb3_1/map')
+        t2 = time.time()
+        self.player.publish('tb3_1', small)
+        self.assertTrue(wait_until(lambda: self.logged('/map_merge', 'map of tb3_1 restarted', t2), 10.0))
+
+        def shrunk():
+            msg = self.listen.map_after(t2 + 0.5)
+            return msg is not None and (np.asarray(msg.data) >= 0).sum() < 0.8 * known_before
+        self.assertTrue(wait_until(shrunk, 10.0), 'stale cells of the restarted map stayed in /map')
+
+        # the robot vanishes (its publisher goes away) and comes back with its full map
+        self.player.pubs['tb3_1'].unregister()
+        t3 = time.time()
+        self.assertTrue(wait_until(lambda: self.logged('/map_merge', 'robot tb3_1 vanished', t3), 10.0))
+        self.player.pubs['tb3_1'] = rospy.Publisher('/tb3_1/map', NumpyGrid, queue_size=1, latch=True)
+        time.sleep(0.5)
+        self.player.publish('tb3_1', g1)
+        self.assertTrue(wait_until(lambda: self.logged('/map_merge', 'robot tb3_1 is back', t3), 10.0))
+        t4 = time.time()
+        self.assertTrue(wait_until(lambda: self.merged('tb3_1', t4), 30.0), 'tb3_1 not merged again')
+        T = lookup(self.buf, 'map', 'tb3_1/map', 5.0)
+        d, a = pose_distance(T, self.T_true)
+        self.assertLess(d, 0.1)
+        self.assertLess(a, math.radians(1))
+
+    def test_2_restart_of_the_merger_reloads_transforms(self):
+        path = rospy.get_param('/map_merge/transforms_file')
+        self.assertTrue(wait_until(lambda: os.path.exists(path), 10.0), 'transforms file not written')
+        saved = yaml.safe_load(open(path))
+        self.assertTrue(any({e['parent'], e['child']} == {'tb3_0', 'tb3_1'} for e in saved['edges']))
+        t0 = time.time()
+        proc = subprocess.Popen(['rosrun', PKG, 'map_merge_node', '__name:=map_merge_b', 'map:=/map_b',
+                                 'map_metadata:=/map_metadata_b', '_transforms_file:=' + path,
+                                 '_merged_map_frame:=map_b', '_estimation_rate:=0.2'],
+                                start_new_session=True)
+        try:
+            self.assertTrue(wait_until(lambda: self.logged('/map_merge_b', 'saved links read from', t0), 20.0))
+            ok = wait_until(lambda: self.logged('/map_merge_b', 'restored link tb3_0 -> tb3_1 verified', t0), 20.0)
+            self.assertTrue(ok, 'the restarted merger did not verify its saved link')
+            T = lookup(self.buf, 'map_b', 'tb3_1/map', 10.0)
+            self.assertIsNotNone(T)
+            d, a = pose_distance(T, self.T_true)
+            self.assertLess(d, 0.1)
+            self.assertLess(a, math.radians(1))
+        finally:
+            os.killpg(proc.pid, signal.SIGINT)
+            proc.wait(10)
+            if os.path.exists(path):
+                os.unlink(path)
+
+
+if __name__ == '__main__':
+    rostest.rosrun(PKG, 'lifecycle', TestLifecycle)
