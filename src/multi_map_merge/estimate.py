@@ -80,7 +80,8 @@ def match(f_src: Features, f_dst: Features, candidates: int = 2,
 
 
 def ransac_rigid(src: np.ndarray, dst: np.ndarray, threshold: float, iterations: int,
-                 seed: int = 0, hypotheses: int = 1) -> List[Tuple[np.ndarray, np.ndarray]]:
+                 seed: int = 0, hypotheses: int = 1,
+                 min_count: int = 2) -> List[Tuple[np.ndarray, np.ndarray]]:
     """Rigid RANSAC: up to ``hypotheses`` distinct transforms (3x3, dst ~ A src), best first,
     each refit by least squares on its inliers, with its inlier mask.
 
@@ -92,63 +93,90 @@ def ransac_rigid(src: np.ndarray, dst: np.ndarray, threshold: float, iterations:
         threshold: inlier distance, cells.
         iterations: number of two-point hypotheses.
         seed: RNG seed, so the same maps give the same answer.
+        min_count: hypotheses with fewer inliers are not worth refitting.
     """
     n = src.shape[0]
     if n < 2:
         return []
     rng = np.random.default_rng(seed)
-    i = rng.integers(0, n, iterations)
-    j = rng.integers(0, n, iterations)
-    dp = src[j] - src[i]
-    dq = dst[j] - dst[i]
-    lp = np.hypot(dp[:, 0], dp[:, 1])
-    lq = np.hypot(dq[:, 0], dq[:, 1])
-    # A rigid motion keeps lengths: a sample whose two lengths differ cannot be right.
-    ok = (lp > 4 * threshold) & (np.abs(lp - lq) < threshold)
-    i, j, dp, dq = i[ok], j[ok], dp[ok], dq[ok]
-    if i.size == 0:
-        return []
-    ang = np.arctan2(dq[:, 1], dq[:, 0]) - np.arctan2(dp[:, 1], dp[:, 0])
-    c, s = np.cos(ang), np.sin(ang)
-    mid_p = 0.5 * (src[i] + src[j])
-    mid_q = 0.5 * (dst[i] + dst[j])
-    tx = mid_q[:, 0] - (c * mid_p[:, 0] - s * mid_p[:, 1])
-    ty = mid_q[:, 1] - (s * mid_p[:, 0] + c * mid_p[:, 1])
     th2 = threshold * threshold
-
-    def count(hyp: np.ndarray, pts: np.ndarray) -> np.ndarray:
-        out = np.empty(hyp.size, np.int64)
-        for k0 in range(0, hyp.size, 512):  # chunks keep the (hypotheses x matches) block small
-            h = hyp[k0:k0 + 512]
-            sx, sy = src[pts, 0], src[pts, 1]
-            ex = c[h, None] * sx - s[h, None] * sy + tx[h, None] - dst[pts, 0]
-            ey = s[h, None] * sx + c[h, None] * sy + ty[h, None] - dst[pts, 1]
-            out[k0:k0 + 512] = ((ex * ex + ey * ey) < th2).sum(axis=1)
-        return out
-
-    # Preemptive scoring: every hypothesis on a random subset of the matches, then only the
-    # best few hundred on all of them (the ranking at the top is what matters).
-    allh = np.arange(c.size)
-    if n > 400 and c.size > 300:
-        sub = rng.choice(n, 400, replace=False)
-        pre = count(allh, sub)
+    # Preemptive scoring: every hypothesis on a fixed random subset of the matches, then only
+    # the best few hundred on all of them (the ranking at the top is what matters).
+    sub = rng.choice(n, 400, replace=False) if n > 400 else np.arange(n)
+    sx, sy, qx, qy = src[sub, 0], src[sub, 1], dst[sub, 0], dst[sub, 1]
+    C, S, TX, TY, ANG, PRE = [], [], [], [], [], []
+    drawn, batch = 0, 3000
+    while drawn < iterations:
+        m = min(batch, iterations - drawn)
+        drawn += m
+        i = rng.integers(0, n, m)
+        j = rng.integers(0, n, m)
+        dp = src[j] - src[i]
+        dq = dst[j] - dst[i]
+        lp = np.hypot(dp[:, 0], dp[:, 1])
+        lq = np.hypot(dq[:, 0], dq[:, 1])
+        # A rigid motion keeps lengths: a sample whose two lengths differ cannot be right.
+        ok = (lp > 4 * threshold) & (np.abs(lp - lq) < threshold)
+        i, j, dp, dq = i[ok], j[ok], dp[ok], dq[ok]
+        if i.size:
+            ang = np.arctan2(dq[:, 1], dq[:, 0]) - np.arctan2(dp[:, 1], dp[:, 0])
+            c, s_ = np.cos(ang), np.sin(ang)
+            mp = 0.5 * (src[i] + src[j])
+            mq = 0.5 * (dst[i] + dst[j])
+            tx = mq[:, 0] - (c * mp[:, 0] - s_ * mp[:, 1])
+            ty = mq[:, 1] - (s_ * mp[:, 0] + c * mp[:, 1])
+            pre = np.empty(c.size, np.int64)
+            for k0 in range(0, c.size, 1024):  # chunks keep the (hypotheses x matches) block small
+                sl = slice(k0, k0 + 1024)
+                ex = c[sl, None] * sx - s_[sl, None] * sy + (tx[sl, None] - qx)
+                ey = s_[sl, None] * sx + c[sl, None] * sy + (ty[sl, None] - qy)
+                pre[sl] = ((ex * ex + ey * ey) < th2).sum(axis=1)
+            C.append(c), S.append(s_), TX.append(tx), TY.append(ty), ANG.append(ang), PRE.append(pre)
+            # Stop early once another batch would find a better two-inlier sample with less
+            # than 1% chance (RANSAC's usual bound, from the best inlier ratio so far).
+            w = min(0.999, max(int(p.max()) for p in PRE) / float(sub.size))
+            if w > 0 and drawn >= np.log(0.01) / np.log(1.0 - w * w) and drawn >= 2 * batch:
+                break
+    if not C:
+        return []
+    c, s, tx, ty, ang, pre = (np.concatenate(v) for v in (C, S, TX, TY, ANG, PRE))
+    if sub.size < n:
         keep = np.argsort(-pre, kind='stable')[:300]
         counts = np.zeros(c.size, np.int64)
-        counts[keep] = count(keep, np.arange(n))
+        ax, ay, bx, by = src[:, 0], src[:, 1], dst[:, 0], dst[:, 1]
+        ex = c[keep, None] * ax - s[keep, None] * ay + (tx[keep, None] - bx)
+        ey = s[keep, None] * ax + c[keep, None] * ay + (ty[keep, None] - by)
+        counts[keep] = ((ex * ex + ey * ey) < th2).sum(axis=1)
     else:
-        counts = count(allh, np.arange(n))
+        counts = pre
     out: List[Tuple[np.ndarray, np.ndarray]] = []
+    # Candidates best first; near-duplicates (same turn, centre of the matches landing within
+    # a few cells) are dropped in one vectorised pass before any refit.
+    order = np.argsort(-counts, kind='stable')[:50 * hypotheses]
+    order = order[counts[order] >= max(2, min_count)]
     centre = src.mean(axis=0)
-    for h in np.argsort(-counts, kind='stable')[:50 * hypotheses]:
-        if len(out) >= hypotheses or counts[h] < 2:
+    cx = c[order] * centre[0] - s[order] * centre[1] + tx[order]
+    cy = s[order] * centre[0] + c[order] * centre[1] + ty[order]
+    an = ang[order]
+    chosen: List[int] = []
+    for k in range(order.size):
+        if chosen:
+            ch = np.array(chosen)
+            dang = np.abs((an[ch] - an[k] + np.pi) % (2 * np.pi) - np.pi)
+            if np.any((np.hypot(cx[ch] - cx[k], cy[ch] - cy[k]) < 3 * threshold) & (dang < np.radians(3))):
+                continue
+        chosen.append(k)
+        if len(chosen) >= 2 * hypotheses:
             break
+    for k in chosen:
+        h = order[k]
         A = np.array([[c[h], -s[h], tx[h]], [s[h], c[h], ty[h]], [0, 0, 1.0]])
-        if any(_same(A, B, centre, threshold) for B, _ in out):
-            continue
         A, mask = _refit(A, src, dst, th2)
         if any(_same(A, B, centre, threshold) for B, _ in out):
             continue
         out.append((A, mask))
+        if len(out) >= hypotheses:
+            break
     return out
 
 

@@ -371,7 +371,7 @@ class MapMerger:
             r.reason = 'too few matches (%d < %d)' % (src.shape[0], c.min_matches)
             return r
         hyps = est.ransac_rigid(src, dst, c.ransac_threshold, c.ransac_iterations, seed,
-                                c.ransac_hypotheses)
+                                c.ransac_hypotheses, min_count=max(2, int(0.7 * c.min_inliers)))
         lv_a = pa.grid.levels(c.free_thresh, c.occupied_thresh)
         lv_b = ch.grid.levels(c.free_thresh, c.occupied_thresh)
         # Score every hypothesis on the grids first (cheap), then polish only the promising
