@@ -388,7 +388,9 @@ class MapMerger:
         th2 = c.ransac_threshold ** 2
         for rank, (ag, inl, A) in enumerate(scored):
             h = est.PairEstimate(A, matches=r.matches, inliers=inl)
-            if c.refine and rank < 2 and ag >= c.min_agreement - 0.2:
+            # the runner-up is polished only when it scores nearly as well as the best
+            close = rank == 0 or (rank == 1 and ag >= scored[0][0] - 0.05)
+            if c.refine and close and ag >= c.min_agreement - 0.2:
                 h.A = self._refined(pa, ch, A)
             good_inl = int(est._inliers(h.A, src[unique], dst[unique], th2).sum()) if r.matches else 0
             h.reliability = good_inl / float(max(1, r.matches))

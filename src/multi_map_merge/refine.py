@@ -55,7 +55,7 @@ class WallField:
         return valid, d, near
 
 
-def occupied_points(levels: np.ndarray, max_points: int = 6000) -> np.ndarray:
+def occupied_points(levels: np.ndarray, max_points: int = 4000) -> np.ndarray:
     """(N, 2) cell coordinates (col, row) of occupied cells, evenly thinned to ``max_points``."""
     rr, cc = np.nonzero(levels == OCCUPIED)
     pts = np.stack([cc, rr], axis=1).astype(np.float64)
