@@ -89,10 +89,14 @@ def classify(data: np.ndarray, free_thresh: float = DEFAULT_FREE_THRESH,
     return lv
 
 
+_VALUES_LUT = np.zeros(256, np.uint8)
+_VALUES_LUT[:3] = np.array([-1, 0, 100], np.int8).view(np.uint8)
+
+
 def levels_to_values(levels: np.ndarray) -> np.ndarray:
     """Levels -> OccupancyGrid int8 values: -1 unknown, 0 free, 100 occupied."""
-    lut = np.array([-1, 0, 100], dtype=np.int8)
-    return lut[levels]
+    import cv2   # cv2.LUT is about 10x faster than numpy fancy indexing on big grids
+    return cv2.LUT(np.ascontiguousarray(levels, np.uint8), _VALUES_LUT).view(np.int8)
 
 
 def to_image(levels: np.ndarray) -> np.ndarray:

@@ -120,6 +120,7 @@ class MapMerger:
         self._patches: Dict[str, Tuple[tuple, Optional[Patch]]] = {}
         self._errors: Dict[str, str] = {}
         self._restored: Dict[Tuple[str, str], Edge] = {}
+        self._merged = None       # (patch identities, merged grid) of the last compose
         self.state_version = 0    # bumped whenever links or placements change (for persistence)
 
     # ------------------------------------------------------------------ inputs
@@ -232,7 +233,12 @@ class MapMerger:
             m = maps.get(name)
             if m is not None:
                 patches.append(self._patch(m, pl.T, lattice))
-        return composite(patches, lattice, self.config.merged_map_frame, self.config.max_cells)
+        key = tuple(id(p) for p in patches)
+        if self._merged is not None and self._merged[0] == key:
+            return self._merged[1]   # nothing moved or changed: the same merged grid
+        grid = composite(patches, lattice, self.config.merged_map_frame, self.config.max_cells)
+        self._merged = (key, grid)
+        return grid
 
     def placements(self) -> Dict[str, Placement]:
         """Placement of every merged robot (the reference included, at identity)."""
