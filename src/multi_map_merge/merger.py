@@ -144,6 +144,10 @@ class MapMerger:
         """
         with self._lock:
             prev = self._maps.get(name)
+            if prev is not None and _same_grid(prev.raw, grid):
+                prev.received = time.time()   # republished unchanged: nothing to recompute
+                self._errors.pop(name, None)
+                return None
             event = None
             if prev is not None and _restarted(prev.raw, grid):
                 event = ('map of %s restarted (%dx%d cells -> %dx%d): its transform is forgotten '
@@ -530,3 +534,8 @@ def _restarted(old: Grid, new: Grid) -> bool:
     known_old = int(np.count_nonzero(old.data >= 0))
     known_new = int(np.count_nonzero(new.data >= 0))
     return known_old > 1000 and known_new < 0.5 * known_old
+
+
+def _same_grid(a: Grid, b: Grid) -> bool:
+    return (a.data.shape == b.data.shape and a.resolution == b.resolution and a.origin == b.origin
+            and a.frame_id == b.frame_id and np.array_equal(a.data, b.data))

@@ -140,6 +140,9 @@ class MergeNode:
         rospy.Timer(rospy.Duration(1.0), self._publish_diagnostics)
         self._worker = threading.Thread(target=self._estimation_loop, name='estimation', daemon=True)
         self._worker.start()
+        self._ready = None   # the latest merged grid, composited off the publishing path
+        self._compositor = threading.Thread(target=self._compositing_loop, name='compositing', daemon=True)
+        self._compositor.start()
         rospy.loginfo('multi_map_merge: merging %s maps matching %s; reference %s; merged frame %s',
                       '/<robot>/' + config.map_topic,
                       config.robots or config.robot_namespace_pattern,
@@ -254,12 +257,22 @@ class MergeNode:
             rospy.logerr_throttle(60, 'multi_map_merge: cannot save %s: %s' % (self.cfg.transforms_file, e))
 
     # -- outputs
+    def _compositing_loop(self) -> None:
+        """Warp and composite in a thread of its own, so that a map that takes long to warp
+        never delays the /map timer: the timer publishes whatever grid is ready."""
+        period = 1.0 / self.cfg.merge_rate
+        while not rospy.is_shutdown():
+            t0 = time.monotonic()
+            try:
+                grid = self.merger.compose()
+                if grid is not None:
+                    self._ready = grid
+            except Exception as e:
+                rospy.logerr_throttle(10, 'multi_map_merge: compositing failed: %r' % e)
+            time.sleep(max(0.01, period / 2.0 - (time.monotonic() - t0)))
+
     def _publish_map(self, _event) -> None:
-        try:
-            grid = self.merger.compose()
-        except Exception as e:
-            rospy.logerr_throttle(10, 'multi_map_merge: compositing failed: %r' % e)
-            return
+        grid = self._ready
         if grid is None:
             return
         now = rospy.Time.now()
@@ -315,6 +328,13 @@ class MergeNode:
                 s.message = 'not merged' + (': ' + st.last_attempt.reason if st.last_attempt else '')
             s.values = [KeyValue(k, v) for k, v in kv]
             arr.status.append(s)
+        s = DiagnosticStatus()
+        s.name, s.hardware_id = 'multi_map_merge: node', 'map_merge'
+        s.level, s.message = DiagnosticStatus.OK, 'estimation cycle %.2f s' % self._est_seconds
+        s.values = [KeyValue('last_estimation_s', '%.3f' % self._est_seconds),
+                    KeyValue('robots', str(len(self.merger.frames()))),
+                    KeyValue('merged', str(len(self.merger.placements())))]
+        arr.status.append(s)
         self._diag_pub.publish(arr)
 
     def _reset(self, _req) -> TriggerResponse:

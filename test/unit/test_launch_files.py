@@ -1,6 +1,11 @@
-"""Every launch file parses with roslaunch's own loader and starts what it should. gmapping and
-rviz are not in Debian: those two packages are tolerated when missing, nothing else is."""
+"""Every launch file parses with roslaunch's own loader (no master) and starts what it should.
+
+gmapping and rviz are not in Debian: those two packages are tolerated when missing, nothing else
+is. Run after sourcing the workspace's devel/setup.bash (``make unit`` does): without it the
+package cannot be found and these tests fail rather than pass vacuously.
+"""
 import os
+import shlex
 
 import pytest
 import yaml
@@ -8,20 +13,24 @@ import yaml
 roslaunch = pytest.importorskip('roslaunch')
 import rospkg  # noqa: E402
 from roslaunch.config import ROSLaunchConfig  # noqa: E402
+from roslaunch.core import Node  # noqa: E402
 from roslaunch.xmlloader import XmlLoader  # noqa: E402
 
 from conftest import REPO  # noqa: E402
 
 LAUNCH = os.path.join(REPO, 'launch')
+RVIZ = os.path.join(REPO, 'rviz', 'multi_map_merge.rviz')
 MAY_BE_MISSING = {'gmapping', 'rviz'}
+GMAPPING = os.path.join('includes', 'gmapping_robot.launch')
 
 
 def load(name, *args):
-    if os.environ.get('ROS_PACKAGE_PATH', '').find('multi_map_merge') < 0:
-        try:
-            rospkg.RosPack().get_path('multi_map_merge')
-        except rospkg.ResourceNotFound:
-            pytest.skip('the package is not on ROS_PACKAGE_PATH: run through make test')
+    """The ROSLaunchConfig of launch/<name> with roslaunch-style ``arg:=value`` args."""
+    try:
+        rospkg.RosPack().get_path('multi_map_merge')
+    except rospkg.ResourceNotFound:
+        pytest.fail('multi_map_merge is not on ROS_PACKAGE_PATH: '
+                    'source the workspace devel/setup.bash (make build) first')
     cfg = ROSLaunchConfig()
     XmlLoader().load(os.path.join(LAUNCH, name), cfg, argv=list(args), verbose=False)
     return cfg
@@ -31,7 +40,13 @@ def nodes(cfg, type_):
     return [n for n in cfg.nodes if n.type == type_]
 
 
+def param(cfg, name):
+    assert name in cfg.params, 'parameter %s not set' % name
+    return cfg.params[name].value
+
+
 def check_executables(cfg):
+    """Every node's package is findable (gmapping and rviz excepted) and ours are executable."""
     rp = rospkg.RosPack()
     for n in cfg.nodes:
         try:
@@ -39,56 +54,161 @@ def check_executables(cfg):
         except rospkg.ResourceNotFound:
             assert n.package in MAY_BE_MISSING, 'package %s of node %s not found' % (n.package, n.name)
             continue
+        assert os.path.isdir(path), path
         if n.package == 'multi_map_merge':
-            assert os.access(os.path.join(REPO, 'scripts', n.type), os.X_OK), n.type
-        else:
-            assert os.path.isdir(path)
+            exe = os.path.join(REPO, 'scripts', n.type)
+            assert os.path.isfile(exe) and os.access(exe, os.X_OK), 'not executable: %s' % exe
+
+
+def check_map_merge(cfg, reference=''):
+    """Exactly one merger, from our package, with config/map_merge.yaml loaded privately."""
+    (node,) = nodes(cfg, 'map_merge_node')
+    assert node.package == 'multi_map_merge' and node.name == 'map_merge'
+    assert node.namespace == '/'
+    with open(os.path.join(REPO, 'config', 'map_merge.yaml')) as f:
+        defaults = yaml.safe_load(f)
+    assert param(cfg, '/map_merge/estimation_rate') == defaults['estimation_rate']
+    assert param(cfg, '/map_merge/merge_rate') == defaults['merge_rate']
+    assert param(cfg, '/map_merge/robot_namespace_pattern') == 'tb3_*'
+    assert param(cfg, '/map_merge/merged_map_frame') == 'map'
+    assert param(cfg, '/map_merge/reference_robot') == reference
+
+
+def check_gmapping(cfg, robots):
+    """One slam_gmapping per robot, in /<robot>/, with that robot's frames and the LDS-02 values."""
+    g = nodes(cfg, 'slam_gmapping')
+    assert sorted(n.namespace for n in g) == sorted('/%s/' % r for r in robots)
+    for n in g:
+        assert n.package == 'gmapping' and n.name == 'slam_gmapping'
+        assert not n.remap_args or all(t.strip('/') != 'scan' for _, t in n.remap_args), \
+            'scan must stay relative (/<robot>/scan)'
+    for r in robots:
+        p = '/%s/slam_gmapping/' % r
+        assert param(cfg, p + 'base_frame') == '%s/base_footprint' % r
+        assert param(cfg, p + 'odom_frame') == '%s/odom' % r
+        assert param(cfg, p + 'map_frame') == '%s/map' % r
+        assert param(cfg, p + 'maxRange') == 8.0
+        assert param(cfg, p + 'maxUrange') == 3.0
+        assert param(cfg, p + 'particles') == 100
+        assert param(cfg, p + 'delta') == 0.05
+
+
+def check_rviz(cfg, wanted):
+    r = nodes(cfg, 'rviz')
+    if not wanted:
+        assert r == [], 'rviz started with rviz:=false'
+        return
+    (node,) = r
+    assert node.package == 'rviz'
+    argv = shlex.split(node.args)
+    assert argv[0] == '-d' and os.path.realpath(argv[1]) == os.path.realpath(RVIZ), node.args
+
+
+def test_gmapping_config_values():
+    with open(os.path.join(REPO, 'config', 'gmapping_lds02.yaml')) as f:
+        g = yaml.safe_load(f)
+    expected = dict(maxUrange=3.0, maxRange=8.0, map_update_interval=2.0, sigma=0.05, kernelSize=1,
+                    lstep=0.05, astep=0.05, iterations=5, lsigma=0.075, ogain=3.0, lskip=0,
+                    minimumScore=50, srr=0.1, srt=0.2, str=0.1, stt=0.2, linearUpdate=1.0,
+                    angularUpdate=0.2, temporalUpdate=0.5, resampleThreshold=0.5, particles=100,
+                    xmin=-10, ymin=-10, xmax=10, ymax=10, delta=0.05, llsamplerange=0.01,
+                    llsamplestep=0.01, lasamplerange=0.005, lasamplestep=0.005)
+    assert g == expected
+    assert not {'base_frame', 'odom_frame', 'map_frame'} & set(g), 'frames are per robot: set in launch'
 
 
 def test_map_merge_launch_loads_config():
     cfg = load('map_merge.launch', 'reference_robot:=tb3_2')
-    (node,) = nodes(cfg, 'map_merge_node')
-    assert node.package == 'multi_map_merge' and node.name == 'map_merge'
-    assert cfg.params['/map_merge/estimation_rate'].value == 0.5
-    assert cfg.params['/map_merge/robot_namespace_pattern'].value == 'tb3_*'
-    assert cfg.params['/map_merge/reference_robot'].value == 'tb3_2'
+    check_map_merge(cfg, reference='tb3_2')
+    assert len(cfg.nodes) == 1
+    check_executables(cfg)
+
+
+def test_gmapping_robot_include():
+    cfg = load(GMAPPING, 'ns:=tb3_7')
+    check_gmapping(cfg, ['tb3_7'])
+    assert len(cfg.nodes) == 1
+    check_executables(cfg)
+
+
+@pytest.mark.parametrize('count,rviz', [(1, 'false'), (2, 'true'), (3, 'false'), (4, 'true')])
+def test_multi_slam(count, rviz):
+    cfg = load('turtlebot3_multi_slam.launch', 'robot_count:=%d' % count, 'rviz:=%s' % rviz)
+    check_gmapping(cfg, ['tb3_%d' % i for i in range(count)])
+    check_map_merge(cfg)
+    check_rviz(cfg, rviz == 'true')
+    assert '/use_sim_time' not in cfg.params      # real robots: wall time
+    check_executables(cfg)
+
+
+def test_multi_slam_defaults_and_names():
+    cfg = load('turtlebot3_multi_slam.launch')
+    check_gmapping(cfg, ['tb3_0', 'tb3_1', 'tb3_2', 'tb3_3'])
+    check_rviz(cfg, True)
+    cfg = load('turtlebot3_multi_slam.launch', 'robot_count:=2', 'first_tb3:=alpha',
+               'second_tb3:=beta', 'reference_robot:=beta')
+    check_gmapping(cfg, ['alpha', 'beta'])
+    check_map_merge(cfg, reference='beta')
+
+
+def check_play(cfg, bag, rate='1.0', start='0'):
+    (play,) = nodes(cfg, 'play')
+    assert play.package == 'rosbag'
+    argv = shlex.split(play.args)
+    assert '--clock' in argv and argv[-1] == bag
+    assert argv[argv.index('-r') + 1] == rate and argv[argv.index('-s') + 1] == start
+    assert param(cfg, '/use_sim_time') is True
+
+
+def test_bag_replay_recorded():
+    cfg = load('bag_replay.launch', 'bag:=/tmp/x.bag', 'slam:=recorded', 'rviz:=false')
+    check_play(cfg, '/tmp/x.bag')
+    assert nodes(cfg, 'slam_gmapping') == []      # the bag's own /tb3_N/map are merged
+    check_map_merge(cfg)
+    check_rviz(cfg, False)
+    assert sorted(n.type for n in cfg.nodes) == ['map_merge_node', 'play']
     check_executables(cfg)
 
 
 @pytest.mark.parametrize('count', [2, 4])
-def test_multi_slam(count):
-    cfg = load('turtlebot3_multi_slam.launch', 'robot_count:=%d' % count, 'rviz:=true')
-    g = nodes(cfg, 'slam_gmapping')
-    assert sorted(n.namespace for n in g) == ['/tb3_%d/' % i for i in range(count)]
-    for i in range(count):
-        p = '/tb3_%d/slam_gmapping/' % i
-        assert cfg.params[p + 'map_frame'].value == 'tb3_%d/map' % i
-        assert cfg.params[p + 'odom_frame'].value == 'tb3_%d/odom' % i
-        assert cfg.params[p + 'base_frame'].value == 'tb3_%d/base_footprint' % i
-        assert cfg.params[p + 'maxRange'].value == 8.0      # LDS-02
-    assert len(nodes(cfg, 'map_merge_node')) == 1 and len(nodes(cfg, 'rviz')) == 1
-    assert '$(find' not in nodes(cfg, 'rviz')[0].args and 'multi_map_merge.rviz' in nodes(cfg, 'rviz')[0].args
+def test_bag_replay_gmapping(count):
+    cfg = load('bag_replay.launch', 'bag:=/tmp/x.bag', 'slam:=gmapping', 'rviz:=true',
+               'robot_count:=%d' % count, 'rate:=2.5', 'start:=30')
+    check_play(cfg, '/tmp/x.bag', rate='2.5', start='30')
+    check_gmapping(cfg, ['tb3_%d' % i for i in range(count)])
+    check_map_merge(cfg)
+    check_rviz(cfg, True)
     check_executables(cfg)
 
 
-def test_bag_replay_recorded_and_gmapping():
-    cfg = load('bag_replay.launch', 'bag:=/tmp/robots.bag', 'slam:=recorded', 'rviz:=false')
-    (play,) = nodes(cfg, 'play')
-    assert '--clock' in play.args and '/tmp/robots.bag' in play.args
-    assert cfg.params['/use_sim_time'].value is True
-    assert nodes(cfg, 'slam_gmapping') == [] and nodes(cfg, 'rviz') == []
-    assert len(nodes(cfg, 'map_merge_node')) == 1
-    check_executables(cfg)
-    cfg = load('bag_replay.launch', 'bag:=/tmp/robots.bag', 'slam:=gmapping', 'robot_count:=3')
-    assert len(nodes(cfg, 'slam_gmapping')) == 3 and len(nodes(cfg, 'rviz')) == 1
-    check_executables(cfg)
+def test_bag_replay_defaults():
+    cfg = load('bag_replay.launch', 'bag:=/tmp/x.bag')
+    assert nodes(cfg, 'slam_gmapping') == []      # slam defaults to recorded
+    check_rviz(cfg, True)
+
+
+def test_missing_packages_tolerated_only_for_gmapping_and_rviz():
+    cfg = ROSLaunchConfig()
+    cfg.add_node(Node('no_such_package_xyz', 'node', name='n'), verbose=False)
+    with pytest.raises(AssertionError):
+        check_executables(cfg)
+    cfg = ROSLaunchConfig()
+    cfg.add_node(Node('multi_map_merge', 'no_such_script', name='n'), verbose=False)
+    with pytest.raises(AssertionError):
+        check_executables(cfg)
 
 
 def test_rviz_config():
-    with open(os.path.join(REPO, 'rviz', 'multi_map_merge.rviz')) as f:
+    with open(RVIZ) as f:
         cfg = yaml.safe_load(f)
+    assert {p['Class'] for p in cfg['Panels']} >= {'rviz/Displays', 'rviz/Views'}
     vm = cfg['Visualization Manager']
-    assert vm['Global Options']['Fixed Frame'] == 'map'
-    topics = {d.get('Topic') for d in vm['Displays'] if d['Class'] == 'rviz/Map'}
-    assert {'/map', '/tb3_0/map', '/tb3_3/map'} <= topics
-    assert any(d['Class'] == 'rviz/TF' for d in vm['Displays'])
+    assert vm['Class'] == '' and vm['Global Options']['Fixed Frame'] == 'map'
+    maps = {d['Topic']: d for d in vm['Displays'] if d['Class'] == 'rviz/Map'}
+    assert maps['/map']['Enabled'] is True and maps['/map']['Name'] == 'Merged map'
+    for i in range(4):
+        d = maps['/tb3_%d/map' % i]
+        assert d['Alpha'] == 0.4 and d['Enabled'] is False
+    (tf,) = [d for d in vm['Displays'] if d['Class'] == 'rviz/TF']
+    assert tf['Enabled'] is True and tf['Show Names'] is True
+    assert vm['Views']['Current']['Class'] == 'rviz/TopDownOrtho'
