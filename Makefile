@@ -15,7 +15,7 @@ APT_PKGS := python3-rospy python3-tf2-ros python3-nav-msgs python3-rostest pytho
   python3-pytest python3-matplotlib
 ROS_ENV := source $(SETUP) && export ROS_HOME=$(WS)/ros_home ROS_LOG_DIR=$(WS)/ros_home/log
 
-.PHONY: deps build test unit demo clean
+.PHONY: deps build test unit demo bench clean
 
 deps: $(WS)/.deps-ok
 $(WS)/.deps-ok:
@@ -53,3 +53,9 @@ demo: build
 
 clean:
 	rm -rf $(WS) demo_output
+
+# Speed and memory against m-explore on the same maps (not part of `make test`): prints a table,
+# writes bench/results/{bench.json,bench.png,live.json}. m-explore is measured when ../shared is present.
+bench: build
+	@$(ROS_ENV) && cd $(CURDIR) && (dpkg-query -W python3-matplotlib >/dev/null 2>&1 || apt-get install -y -q python3-matplotlib >/dev/null) && \
+	python3 bench/run_bench.py && python3 bench/live_gap.py

@@ -115,7 +115,7 @@ for g in grids:
 m0 = MapMerger(cfg)
 rms = [RobotMap('r%%02d' %% k, g, k + 1, 0).at(g.resolution) for k, g in enumerate(grids)]
 for r in rms:
-    m0._features_of(r); m0._walls_of(r)
+    m0._features_of(r)
 pairs = list(itertools.combinations(range(len(rms)), 2))[:12]
 pair = []
 for a, b in pairs:

@@ -14,12 +14,12 @@ and computes outside it.
 """
 from __future__ import annotations
 
+import itertools
 import math
 import os
 import threading
 import time
 import zlib
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Dict, List, Optional, Tuple
 
@@ -27,10 +27,10 @@ import numpy as np
 
 from . import estimate as est
 from .config import MergeConfig
-from .features import FeatureExtractor, Features
+from .features import Features
 from .grid import Grid, rescale
 from .merge import Lattice, Patch, composite, lattice_for, warp_patch
-from .refine import WallField, occupied_points, refine
+from .pairs import PairInput, compute_features, estimate_pair
 from .transforms import image_to_pose, pose_distance, pose_to_image, se2, xyyaw
 
 
@@ -102,17 +102,11 @@ class MapMerger:
     def __init__(self, config: Optional[MergeConfig] = None):
         self.config = config or MergeConfig()
         c = self.config
-        self._extract = FeatureExtractor(c.akaze_threshold, c.max_features, c.feature_cells)
-        # AKAZE, matching, warping and most numpy work release the GIL, so threads use every
-        # core without copying grids between processes.
-        self._pool = ThreadPoolExecutor(max_workers=c.workers or os.cpu_count() or 1,
-                                        thread_name_prefix='mmm-estimate')
         self._lock = threading.Lock()
         self._maps: Dict[str, RobotMap] = {}
         self._version = 0
         self._reference: str = c.reference_robot
         self._features: Dict[str, Tuple[tuple, Features]] = {}
-        self._walls: Dict[str, Tuple[tuple, WallField, np.ndarray]] = {}
         self._edges: Dict[Tuple[str, str], Edge] = {}
         self._tried: Dict[Tuple[str, str], Tuple[int, int]] = {}
         self._attempts: Dict[Tuple[str, str], est.PairEstimate] = {}
@@ -121,6 +115,7 @@ class MapMerger:
         self._errors: Dict[str, str] = {}
         self._restored: Dict[Tuple[str, str], Edge] = {}
         self._merged = None       # (patch identities, merged grid) of the last compose
+        self._uid = '%d-%d' % (os.getpid(), next(_MERGERS))   # names its maps in worker caches
         self.state_version = 0    # bumped whenever links or placements change (for persistence)
 
     # ------------------------------------------------------------------ inputs
@@ -214,12 +209,16 @@ class MapMerger:
         # (0) links saved by an earlier run are used only once the grids confirm them
         events = self._verify_restored(maps)
         # (1) grid -> image -> AKAZE features, only for maps that changed
-        list(self._pool.map(self._features_of, maps.values()))
-        list(self._pool.map(lambda m: self._walls_of(m), maps.values()))
+        self._features_all(maps)
         # (2) match, (3) rigid RANSAC + inlier ratio, (4) verify on the grids, for every pair
-        # whose maps changed
-        list(self._pool.map(lambda ab: self._estimate_pair(maps[ab[0]], maps[ab[1]]),
-                            self._pairs(maps, ref)))
+        # whose maps changed (in worker processes)
+        todo = self._pairs(maps, ref)
+        inputs = {n: self._input(maps[n]) for n in {x for ab in todo for x in ab}}
+        results = self._map(estimate_pair, [self.config] * len(todo), [inputs[a] for a, _ in todo],
+                            [inputs[b] for _, b in todo],
+                            [zlib.crc32(('%s|%s' % ab).encode()) for ab in todo])
+        for (a, b), r in zip(todo, results):
+            self._keep(maps[a], maps[b], r)
         # (4) per robot keep the most reliable placement; (6) it gives the robot's TF
         return events + self._place(maps, ref)
 
@@ -324,20 +323,28 @@ class MapMerger:
         return events
 
     def _features_of(self, m: RobotMap) -> Features:
-        c = self.config
+        """(1) features of a map, computed once per map version."""
         cached = self._features.get(m.name)
         if cached is None or cached[0] != (m.version, m.grid.resolution):
-            lv = m.grid.levels(c.free_thresh, c.occupied_thresh)
-            self._features[m.name] = ((m.version, m.grid.resolution), self._extract(lv))
+            lv = m.grid.levels(self.config.free_thresh, self.config.occupied_thresh)
+            self._features[m.name] = ((m.version, m.grid.resolution), compute_features(self.config, lv))
         return self._features[m.name][1]
 
-    def _walls_of(self, m: RobotMap) -> Tuple[WallField, np.ndarray]:
+    def _features_all(self, maps: Dict[str, RobotMap]) -> None:
+        """Features of every map that changed, in the worker processes."""
+        todo = [m for m in maps.values()
+                if self._features.get(m.name, (None,))[0] != (m.version, m.grid.resolution)]
+        if not todo:
+            return
         c = self.config
-        cached = self._walls.get(m.name)
-        if cached is None or cached[0] != (m.version, m.grid.resolution):
-            lv = m.grid.levels(c.free_thresh, c.occupied_thresh)
-            self._walls[m.name] = ((m.version, m.grid.resolution), WallField(lv), occupied_points(lv))
-        return self._walls[m.name][1], self._walls[m.name][2]
+        levels = [m.grid.levels(c.free_thresh, c.occupied_thresh) for m in todo]
+        for m, f in zip(todo, self._map(compute_features, [c] * len(todo), levels)):
+            self._features[m.name] = ((m.version, m.grid.resolution), f)
+
+    def _map(self, fn, *iterables):
+        """fn over the arguments in the worker pool (in this process when workers == 1)."""
+        pool = _pool(self.config.workers)
+        return list(pool.map(fn, *iterables)) if pool is not None else list(map(fn, *iterables))
 
     def _pairs(self, maps: Dict[str, RobotMap], ref: str) -> List[Tuple[str, str]]:
         """Pairs (parent, child) whose maps changed since they were last tried: every pair of
@@ -352,15 +359,13 @@ class MapMerger:
                     out.append(key)
         return out
 
-    def _estimate_pair(self, pa: RobotMap, ch: RobotMap) -> None:
-        """Estimate the transform of ``ch``'s map into ``pa``'s and keep it if it is verified
-        and more reliable than the one kept for this pair."""
+    def _keep(self, pa: RobotMap, ch: RobotMap, r: est.PairEstimate) -> None:
+        """(4) keep the pair's estimate if it is verified and more reliable than the kept one."""
         c = self.config
         key = (pa.name, ch.name)
-        self._tried[key] = (pa.version, ch.version)
-        r = self.estimate_grids(pa, ch, seed=zlib.crc32(('%s|%s' % key).encode()))
         r.extra['t'] = time.time()
         with self._lock:
+            self._tried[key] = (pa.version, ch.version)
             self._attempts[key] = r
             if not r.accepted:
                 return
@@ -371,90 +376,14 @@ class MapMerger:
                                         r.inliers, r.matches, time.time())
                 self.state_version += 1
 
+    def _input(self, m: RobotMap) -> PairInput:
+        c = self.config
+        return PairInput(m.name, m.version, m.grid.levels(c.free_thresh, c.occupied_thresh),
+                         m.grid.resolution, m.grid.origin, self._features_of(m), self._uid)
+
     def estimate_grids(self, pa: RobotMap, ch: RobotMap, seed: int = 0) -> est.PairEstimate:
-        """Steps (2)-(4) for one pair: cells of ``ch`` -> cells of ``pa``, verified."""
-        c = self.config
-        fa, fb = self._features_of(pa), self._features_of(ch)
-        src, dst, unique = est.match(fb, fa, c.match_candidates, c.match_ratio)
-        r = est.PairEstimate(None, matches=int(unique.sum()))
-        if src.shape[0] < c.min_matches:
-            r.reason = 'too few matches (%d < %d)' % (src.shape[0], c.min_matches)
-            return r
-        hyps = est.ransac_rigid(src, dst, c.ransac_threshold, c.ransac_iterations, seed,
-                                c.ransac_hypotheses, min_count=max(2, int(0.7 * c.min_inliers)))
-        lv_a = pa.grid.levels(c.free_thresh, c.occupied_thresh)
-        lv_b = ch.grid.levels(c.free_thresh, c.occupied_thresh)
-        # Score every hypothesis on the grids first (cheap), then polish only the promising
-        # ones by ICP (the costly step) and score them again.
-        scored = []
-        for A, mask in hyps:
-            inl = int(mask.sum())
-            if inl < c.min_inliers:
-                continue
-            ag, ov = est.agreement(lv_a, lv_b, A, c.agreement_tolerance)
-            scored.append((ag, inl, A))
-        scored.sort(key=lambda t: (t[0], t[1]), reverse=True)
-        best: Optional[est.PairEstimate] = None
-        th2 = c.ransac_threshold ** 2
-        for rank, (ag, inl, A) in enumerate(scored):
-            h = est.PairEstimate(A, matches=r.matches, inliers=inl)
-            # the runner-up is polished only when it scores nearly as well as the best
-            close = rank == 0 or (rank == 1 and ag >= scored[0][0] - 0.05)
-            if c.refine and close and ag >= c.min_agreement - 0.2:
-                h.A = self._refined(pa, ch, A)
-            good_inl = int(est._inliers(h.A, src[unique], dst[unique], th2).sum()) if r.matches else 0
-            h.reliability = good_inl / float(max(1, r.matches))
-            h.agreement, h.overlap = est.agreement(lv_a, lv_b, h.A, c.agreement_tolerance)
-            contradiction = self._contradicts_prior(pa, ch, h.A)
-            if contradiction:
-                h.reason = contradiction
-            elif h.overlap < c.min_overlap_cells:
-                h.reason = 'overlap %d cells < %d' % (h.overlap, c.min_overlap_cells)
-            elif h.agreement < c.min_agreement:
-                h.reason = 'grids disagree: agreement %.2f < %.2f' % (h.agreement, c.min_agreement)
-            elif h.reliability < c.min_reliability:
-                h.reason = 'inlier ratio %.3f < %.3f' % (h.reliability, c.min_reliability)
-            else:
-                h.accepted = True
-            # The grids decide between hypotheses: the best-agreeing accepted one wins.
-            if best is None or (h.accepted, h.agreement, h.inliers) > (best.accepted, best.agreement, best.inliers):
-                best = h
-        if best is None and hyps:
-            r.inliers = max(int(m.sum()) for _, m in hyps)
-            r.reason = 'too few inliers (%d < %d)' % (r.inliers, c.min_inliers)
-            return r
-        if best is None:
-            r.reason = 'RANSAC found no consistent transform'
-            return r
-        return best
-
-    def _contradicts_prior(self, pa: RobotMap, ch: RobotMap, A: np.ndarray) -> str:
-        """Why the link contradicts the configured initial poses ('' when it does not, or
-        when either robot has none). With priors, of two look-alike placements (a building
-        of identical halves) only the one near where the robots started can be accepted."""
-        priors = self.config.initial_poses
-        if pa.name not in priors or ch.name not in priors:
-            return ''
-        T = image_to_pose(A, pa.grid.resolution, pa.grid.origin, ch.grid.resolution, ch.grid.origin)
-        P = np.linalg.inv(se2(*priors[pa.name])) @ se2(*priors[ch.name])
-        d, a = pose_distance(T, P)
-        tol_d, tol_a = self.config.initial_pose_tolerance
-        if d > tol_d or a > tol_a:
-            return ('contradicts initial poses: %.2f m, %.1f deg from them (tolerance %.2f m, %.1f deg)'
-                    % (d, math.degrees(a), tol_d, math.degrees(tol_a)))
-        return ''
-
-    def _refined(self, pa: RobotMap, ch: RobotMap, A: np.ndarray) -> np.ndarray:
-        c = self.config
-        field_a, _ = self._walls_of(pa)
-        _, pts_b = self._walls_of(ch)
-        A2 = refine(field_a, pts_b, A, max_distance=c.ransac_threshold)
-        if A2 is None:
-            return A
-        # ICP may only polish what RANSAC found, never move it somewhere else.
-        d = np.hypot(*(A2[:2, 2] - A[:2, 2]))
-        da = abs(math.atan2(A2[1, 0], A2[0, 0]) - math.atan2(A[1, 0], A[0, 0]))
-        return A2 if d <= 3 * c.ransac_threshold and da <= math.radians(5) else A
+        """Steps (2)-(4) for one pair, here in this process: cells of ``ch`` -> cells of ``pa``."""
+        return estimate_pair(self.config, self._input(pa), self._input(ch), seed)
 
     def _place(self, maps: Dict[str, RobotMap], ref: str) -> List[str]:
         """Chain every robot to the reference through its most reliable links (the path whose
@@ -539,3 +468,28 @@ def _restarted(old: Grid, new: Grid) -> bool:
 def _same_grid(a: Grid, b: Grid) -> bool:
     return (a.data.shape == b.data.shape and a.resolution == b.resolution and a.origin == b.origin
             and a.frame_id == b.frame_id and np.array_equal(a.data, b.data))
+
+
+_MERGERS = itertools.count()
+_POOL = None
+_POOL_SIZE = 0
+
+
+def _pool(workers: int):
+    """The process pool shared by every merger in this process (None: work inline).
+
+    Processes, not threads: estimation is partly pure Python, and in threads it would hold the
+    GIL that the node's /map and TF timers need. 'forkserver' starts clean workers that do not
+    inherit the ROS node's threads."""
+    global _POOL, _POOL_SIZE
+    n = workers or os.cpu_count() or 1
+    if n <= 1:
+        return None
+    if _POOL is None or _POOL_SIZE != n:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+        if _POOL is not None:
+            _POOL.shutdown(wait=False)
+        _POOL = ProcessPoolExecutor(max_workers=n, mp_context=multiprocessing.get_context('forkserver'))
+        _POOL_SIZE = n
+    return _POOL

@@ -1,0 +1,143 @@
+"""Steps 2-4 for one pair of maps, as plain functions of plain data, so that they can run in
+worker processes (see :mod:`merger`): match, RANSAC, verify on the grids, refine.
+
+Worker processes keep the estimation's Python work off the node's interpreter: threads would
+share its GIL with the timers that publish /map and TF.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Dict, Optional, Tuple
+
+import numpy as np
+
+from . import estimate as est
+from .config import MergeConfig
+from .features import FeatureExtractor, Features
+from .refine import WallField, occupied_points, refine
+from .transforms import image_to_pose, pose_distance, se2
+
+
+@dataclass
+class PairInput:
+    """One robot's side of a pair: its working-resolution grid levels and features."""
+
+    name: str
+    version: int
+    levels: np.ndarray            # uint8 levels (grid.UNKNOWN/FREE/OCCUPIED), OccupancyGrid order
+    resolution: float             # metres per cell
+    origin: Tuple[float, float, float]
+    features: Features
+    owner: str = ''               # the merger it comes from: (owner, name, version) is unique
+
+
+# Per-process caches: a worker sees the same maps again and again.
+_EXTRACTORS: Dict[tuple, FeatureExtractor] = {}
+_WALLS: Dict[tuple, Tuple[WallField, np.ndarray]] = {}
+
+
+def compute_features(config: MergeConfig, levels: np.ndarray) -> Features:
+    """(1) AKAZE features of a grid's levels, with the configured extractor."""
+    key = (config.akaze_threshold, config.max_features, config.feature_cells)
+    fe = _EXTRACTORS.get(key)
+    if fe is None:
+        fe = _EXTRACTORS[key] = FeatureExtractor(*key)
+    return fe(levels)
+
+
+def _walls(p: PairInput) -> Tuple[WallField, np.ndarray]:
+    key = (p.owner, p.name, p.version, p.resolution)
+    w = _WALLS.get(key)
+    if w is None:
+        if len(_WALLS) > 64:
+            _WALLS.clear()
+        w = _WALLS[key] = (WallField(p.levels), occupied_points(p.levels))
+    return w
+
+
+def contradicts_prior(config: MergeConfig, pa: PairInput, ch: PairInput, A: np.ndarray) -> str:
+    """Why the link contradicts the configured initial poses ('' when it does not, or when
+    either robot has none). With priors, of two look-alike placements (a building of
+    identical halves) only the one near where the robots started can be accepted."""
+    priors = config.initial_poses
+    if pa.name not in priors or ch.name not in priors:
+        return ''
+    T = image_to_pose(A, pa.resolution, pa.origin, ch.resolution, ch.origin)
+    P = np.linalg.inv(se2(*priors[pa.name])) @ se2(*priors[ch.name])
+    d, a = pose_distance(T, P)
+    tol_d, tol_a = config.initial_pose_tolerance
+    if d > tol_d or a > tol_a:
+        return ('contradicts initial poses: %.2f m, %.1f deg from them (tolerance %.2f m, %.1f deg)'
+                % (d, math.degrees(a), tol_d, math.degrees(tol_a)))
+    return ''
+
+
+def refined(config: MergeConfig, pa: PairInput, ch: PairInput, A: np.ndarray) -> np.ndarray:
+    """ICP polish of ``A`` on the walls; it may only polish, never move the estimate away."""
+    field_a, _ = _walls(pa)
+    _, pts_b = _walls(ch)
+    A2 = refine(field_a, pts_b, A, max_distance=config.ransac_threshold)
+    if A2 is None:
+        return A
+    d = np.hypot(*(A2[:2, 2] - A[:2, 2]))
+    da = abs(math.atan2(A2[1, 0], A2[0, 0]) - math.atan2(A[1, 0], A[0, 0]))
+    return A2 if d <= 3 * config.ransac_threshold and da <= math.radians(5) else A
+
+
+def estimate_pair(config: MergeConfig, pa: PairInput, ch: PairInput, seed: int = 0) -> est.PairEstimate:
+    """Cells of ``ch`` -> cells of ``pa``: (2) match, (3) rigid RANSAC + inlier ratio,
+    (4) verification on the grids and ICP refinement. The best-agreeing accepted hypothesis
+    is returned, or the best rejected one with its reason."""
+    c = config
+    src, dst, unique = est.match(ch.features, pa.features, c.match_candidates, c.match_ratio)
+    r = est.PairEstimate(None, matches=int(unique.sum()))
+    if src.shape[0] < c.min_matches:
+        r.reason = 'too few matches (%d < %d)' % (src.shape[0], c.min_matches)
+        return r
+    hyps = est.ransac_rigid(src, dst, c.ransac_threshold, c.ransac_iterations, seed,
+                            c.ransac_hypotheses, min_count=max(2, int(0.7 * c.min_inliers)))
+    lv_a, lv_b = pa.levels, ch.levels
+    # Score every hypothesis on the grids first (cheap), then polish only the promising ones
+    # by ICP (the costly step) and score them again.
+    scored = []
+    for A, mask in hyps:
+        inl = int(mask.sum())
+        if inl < c.min_inliers:
+            continue
+        ag, _ = est.agreement(lv_a, lv_b, A, c.agreement_tolerance)
+        scored.append((ag, inl, A))
+    scored.sort(key=lambda t: (t[0], t[1]), reverse=True)
+    best: Optional[est.PairEstimate] = None
+    th2 = c.ransac_threshold ** 2
+    for rank, (ag, inl, A) in enumerate(scored):
+        h = est.PairEstimate(A, matches=r.matches, inliers=inl)
+        # the runner-up is polished only when it scores nearly as well as the best
+        close = rank == 0 or (rank == 1 and ag >= scored[0][0] - 0.05)
+        if c.refine and close and ag >= c.min_agreement - 0.2:
+            h.A = refined(c, pa, ch, A)
+        good_inl = int(est._inliers(h.A, src[unique], dst[unique], th2).sum()) if r.matches else 0
+        h.reliability = good_inl / float(max(1, r.matches))
+        h.agreement, h.overlap = est.agreement(lv_a, lv_b, h.A, c.agreement_tolerance)
+        contradiction = contradicts_prior(c, pa, ch, h.A)
+        if contradiction:
+            h.reason = contradiction
+        elif h.overlap < c.min_overlap_cells:
+            h.reason = 'overlap %d cells < %d' % (h.overlap, c.min_overlap_cells)
+        elif h.agreement < c.min_agreement:
+            h.reason = 'grids disagree: agreement %.2f < %.2f' % (h.agreement, c.min_agreement)
+        elif h.reliability < c.min_reliability:
+            h.reason = 'inlier ratio %.3f < %.3f' % (h.reliability, c.min_reliability)
+        else:
+            h.accepted = True
+        # The grids decide between hypotheses: the best-agreeing accepted one wins.
+        if best is None or (h.accepted, h.agreement, h.inliers) > (best.accepted, best.agreement, best.inliers):
+            best = h
+    if best is None and hyps:
+        r.inliers = max(int(m.sum()) for _, m in hyps)
+        r.reason = 'too few inliers (%d < %d)' % (r.inliers, c.min_inliers)
+        return r
+    if best is None:
+        r.reason = 'RANSAC found no consistent transform'
+        return r
+    return best
