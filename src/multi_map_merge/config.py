@@ -47,7 +47,7 @@ class MergeConfig:
     initial_pose_tolerance: List[float] = field(default_factory=lambda: [1.0, 0.35])  # m, rad
     trust_initial_poses: bool = False        # place robots with no verified link at their prior
     # --- speed ---
-    workers: int = 0                         # estimation threads; 0 = one per core
+    workers: int = 0                         # estimation processes; 0 = one per core, 1 = inline
     # --- persistence (node only) ---
     transforms_file: str = ''                # '' = do not persist
 

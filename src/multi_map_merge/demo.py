@@ -24,7 +24,7 @@ import yaml
 from .grid import Grid
 from .mapio import grid_to_pgm, load_map, save_map
 from .synth import cut_piece, random_poses, split_rects
-from .transforms import pose_distance, se2, xyyaw
+from .transforms import pose_distance, xyyaw
 
 
 def make_inputs(world_yaml: str, out_dir: str, robots: int, seed: int) -> Dict[str, np.ndarray]:

@@ -8,7 +8,6 @@ only here.
 """
 from __future__ import annotations
 
-import math
 import os
 from typing import Dict, Tuple
 
@@ -16,7 +15,7 @@ import cv2
 import numpy as np
 import yaml
 
-from .grid import Grid, GridError, OCCUPIED, FREE, validate, classify
+from .grid import Grid, GridError, OCCUPIED, FREE, validate
 
 
 class MapFileError(Exception):

@@ -20,7 +20,7 @@ import os
 import threading
 import time
 import zlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Dict, List, Optional, Tuple
 
 import numpy as np
@@ -31,7 +31,7 @@ from .features import Features
 from .grid import Grid, rescale
 from .merge import Lattice, Patch, composite, lattice_for, warp_patch
 from .pairs import PairInput, compute_features, estimate_pair
-from .transforms import image_to_pose, pose_distance, pose_to_image, se2, xyyaw
+from .transforms import image_to_pose, pose_to_image, se2, xyyaw
 
 
 @dataclass

@@ -1,5 +1,4 @@
 """Hundreds of bad and strange inputs into the core: clear errors, no crash, no false merge."""
-import math
 import os
 
 import numpy as np

@@ -5,7 +5,6 @@ import math
 import os
 
 import numpy as np
-import pytest
 
 from multi_map_merge import estimate as est
 from multi_map_merge.grid import FREE, OCCUPIED

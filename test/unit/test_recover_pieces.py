@@ -1,7 +1,6 @@
 """Pieces cut out of real maps, moved by known poses, recovered within 2 cells and 1 degree."""
 import os
 import subprocess
-import sys
 
 import numpy as np
 import pytest

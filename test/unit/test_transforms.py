@@ -3,7 +3,7 @@ import math
 import numpy as np
 import pytest
 
-from multi_map_merge.grid import Grid
+
 from multi_map_merge.mapio import load_map
 from multi_map_merge.synth import cut_piece
 from multi_map_merge.transforms import (apply, cell_to_metric, image_to_pose, pose_to_image,
