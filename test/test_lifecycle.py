@@ -122,17 +122,16 @@ class TestLifecycle(unittest.TestCase):
         self.assertTrue(wait_until(lambda: os.path.exists(path), 10.0), 'transforms file not written')
         saved = yaml.safe_load(open(path))
         self.assertTrue(any({e['parent'], e['child']} == {'tb3_0', 'tb3_1'} for e in saved['edges']))
-        t0 = time.time()
+        # A second merger that cannot estimate anything itself (min_matches out of reach): if it
+        # places tb3_1 right, that can only be the saved link, reloaded and verified again.
         proc = subprocess.Popen(['rosrun', PKG, 'map_merge_node', '__name:=map_merge_b', 'map:=/map_b',
                                  'map_metadata:=/map_metadata_b', '_transforms_file:=' + path,
-                                 '_merged_map_frame:=map_b', '_estimation_rate:=0.2'],
+                                 '_merged_map_frame:=map_b', '_min_matches:=100000000',
+                                 '_estimation_rate:=2.0'],
                                 start_new_session=True)
         try:
-            self.assertTrue(wait_until(lambda: self.logged('/map_merge_b', 'saved links read from', t0), 20.0))
-            ok = wait_until(lambda: self.logged('/map_merge_b', 'restored link tb3_0 -> tb3_1 verified', t0), 20.0)
-            self.assertTrue(ok, 'the restarted merger did not verify its saved link')
-            T = lookup(self.buf, 'map_b', 'tb3_1/map', 10.0)
-            self.assertIsNotNone(T)
+            T = lookup(self.buf, 'map_b', 'tb3_1/map', 30.0)
+            self.assertIsNotNone(T, 'the restarted merger did not restore its saved link')
             d, a = pose_distance(T, self.T_true)
             self.assertLess(d, 0.1)
             self.assertLess(a, math.radians(1))

@@ -112,11 +112,12 @@ def report(status: Dict, names: Sequence[str], truth: Optional[Dict[str, np.ndar
             print('%-6s %-6s  %s' % (n, 'no', d.get('message', 'no diagnostics from the merger')))
             continue
         yaw = _f(d, 'yaw', '%.6f')
+        ref = d.get('reference') == 'true'
         line = '%-6s %-6s %8s %8s %9s %7s %9s %7s %-7s ' % (
             n, 'yes', _f(d, 'x', '%.3f'), _f(d, 'y', '%.3f'),
             '%.2f' % math.degrees(float(yaw)) if yaw != '-' else '-',
-            _f(d, 'inlier_ratio', '%.3f'), _f(d, 'agreement', '%.3f'), d.get('inliers', '-'),
-            d.get('via', '-') if not d.get('reference') == 'true' else '(ref)')
+            _f(d, 'inlier_ratio', '%.3f'), _f(d, 'agreement', '%.3f'),
+            '-' if ref else d.get('inliers', '-'), '(ref)' if ref else d.get('via', '-'))
         tf = d.get('tf')
         if truth is not None and n in truth:
             if tf is None:

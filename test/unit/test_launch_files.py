@@ -4,6 +4,7 @@ gmapping and rviz are not in Debian: those two packages are tolerated when missi
 is. Run after sourcing the workspace's devel/setup.bash (``make unit`` does): without it the
 package cannot be found and these tests fail rather than pass vacuously.
 """
+import glob
 import os
 import shlex
 
@@ -11,6 +12,7 @@ import pytest
 import yaml
 
 roslaunch = pytest.importorskip('roslaunch')
+import roslib.packages  # noqa: E402
 import rospkg  # noqa: E402
 from roslaunch.config import ROSLaunchConfig  # noqa: E402
 from roslaunch.core import Node  # noqa: E402
@@ -46,7 +48,8 @@ def param(cfg, name):
 
 
 def check_executables(cfg):
-    """Every node's package is findable (gmapping and rviz excepted) and ours are executable."""
+    """Every node's package and executable are found (gmapping and rviz excepted), ours are
+    executable scripts of this repository."""
     rp = rospkg.RosPack()
     for n in cfg.nodes:
         try:
@@ -58,6 +61,8 @@ def check_executables(cfg):
         if n.package == 'multi_map_merge':
             exe = os.path.join(REPO, 'scripts', n.type)
             assert os.path.isfile(exe) and os.access(exe, os.X_OK), 'not executable: %s' % exe
+        found = roslib.packages.find_node(n.package, n.type, rospack=rp)
+        assert found, 'executable %s of package %s (node %s) not found' % (n.type, n.package, n.name)
 
 
 def check_map_merge(cfg, reference=''):
@@ -188,14 +193,40 @@ def test_bag_replay_defaults():
 
 
 def test_missing_packages_tolerated_only_for_gmapping_and_rviz():
+    for pkg, exe in [('no_such_package_xyz', 'node'), ('multi_map_merge', 'no_such_script'),
+                     ('rosbag', 'no_such_executable')]:
+        cfg = ROSLaunchConfig()
+        cfg.add_node(Node(pkg, exe, name='n'), verbose=False)
+        with pytest.raises(AssertionError):
+            check_executables(cfg)
     cfg = ROSLaunchConfig()
-    cfg.add_node(Node('no_such_package_xyz', 'node', name='n'), verbose=False)
-    with pytest.raises(AssertionError):
-        check_executables(cfg)
-    cfg = ROSLaunchConfig()
-    cfg.add_node(Node('multi_map_merge', 'no_such_script', name='n'), verbose=False)
-    with pytest.raises(AssertionError):
-        check_executables(cfg)
+    for pkg, exe in [('gmapping', 'slam_gmapping'), ('rviz', 'rviz'), ('rosbag', 'play')]:
+        cfg.add_node(Node(pkg, exe, name=exe), verbose=False)
+    check_executables(cfg)
+
+
+# Arguments each launch file needs (the rest keep their defaults); a new launch file without an
+# entry here is loaded with none.
+REQUIRED_ARGS = {
+    'bag_replay.launch': ['bag:=/tmp/x.bag'],
+    GMAPPING: ['ns:=tb3_0'],
+}
+ALL_LAUNCH = sorted(os.path.relpath(p, LAUNCH)
+                    for p in glob.glob(os.path.join(LAUNCH, '**', '*.launch'), recursive=True))
+
+
+def test_launch_files_found():
+    assert set(ALL_LAUNCH) >= {'map_merge.launch', 'turtlebot3_multi_slam.launch',
+                               'bag_replay.launch', GMAPPING}
+
+
+@pytest.mark.parametrize('name', ALL_LAUNCH)
+def test_every_launch_file_parses_and_its_nodes_exist(name):
+    cfg = load(name, *REQUIRED_ARGS.get(name, []))
+    assert cfg.nodes, '%s starts no node' % name
+    check_executables(cfg)
+    if name != GMAPPING:                 # every top-level launch file runs the merger
+        check_map_merge(cfg)
 
 
 def test_rviz_config():
