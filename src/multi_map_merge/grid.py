@@ -167,18 +167,27 @@ def rescale(grid: Grid, resolution: float) -> Grid:
     if abs(grid.resolution - resolution) < 1e-9:
         return grid
     f = grid.resolution / resolution          # new cells per old cell
-    h = max(1, int(round(grid.height * f)))
-    w = max(1, int(round(grid.width * f)))
     lv = grid.levels()
-    # index of the source cell covering each target cell (nearest), then max-pool on shrink
-    rows = np.minimum((np.arange(h) + 0.5) / f, grid.height - 1e-6).astype(int)
-    cols = np.minimum((np.arange(w) + 0.5) / f, grid.width - 1e-6).astype(int)
-    out = lv[rows][:, cols]
     if f < 1:
         import cv2
-        k = int(math.ceil(1 / f))
+        # Max-pool each target cell's block of source cells: the block of target row i starts
+        # at source row floor(i / f) (both grids share the origin corner), so the dilation
+        # anchored at (0, 0) is sampled at block starts, and the target covers every source
+        # cell (ceil), or the first/last rows' walls would vanish and the rest shift a cell.
+        h = max(1, int(math.ceil(grid.height * f - 1e-9)))
+        w = max(1, int(math.ceil(grid.width * f - 1e-9)))
+        rows = np.minimum(np.floor(np.arange(h) / f + 1e-9), grid.height - 1).astype(int)
+        cols = np.minimum(np.floor(np.arange(w) / f + 1e-9), grid.width - 1).astype(int)
+        k = int(math.ceil(1 / f - 1e-9))
         dil = cv2.dilate(lv, np.ones((k, k), np.uint8), anchor=(0, 0))
         out = dil[rows][:, cols]
+    else:
+        # upsampling: the source cell containing each target cell's centre
+        h = max(1, int(round(grid.height * f)))
+        w = max(1, int(round(grid.width * f)))
+        rows = np.minimum((np.arange(h) + 0.5) / f, grid.height - 1e-6).astype(int)
+        cols = np.minimum((np.arange(w) + 0.5) / f, grid.width - 1e-6).astype(int)
+        out = lv[rows][:, cols]
     return Grid(levels_to_values(out), float(resolution), grid.origin, grid.frame_id, grid.stamp)
 
 

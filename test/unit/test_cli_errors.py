@@ -33,17 +33,18 @@ def test_missing_yaml(tmp_path, capsys, good):
 def test_yaml_without_image(tmp_path, capsys, good):
     bad = write(tmp_path, 'noimg.yaml', 'resolution: 0.05\norigin: [0, 0, 0]\n')
     code, err = run(capsys, [good, bad, '-o', str(tmp_path / 'o.yaml')])
-    assert code == 2 and 'noimg.yaml' in err
+    assert code == 2 and 'noimg.yaml' in err and 'image' in err
 
 
 def test_missing_or_garbage_pgm(tmp_path, capsys, good):
     bad = write(tmp_path, 'nopgm.yaml', 'image: nothere.pgm\nresolution: 0.05\norigin: [0, 0, 0]\n')
     code, err = run(capsys, [good, bad, '-o', str(tmp_path / 'o.yaml')])
-    assert code == 2 and 'nopgm.yaml' in err
+    assert code == 2 and 'nopgm.yaml' in err and 'nothere.pgm' in err
+    assert not os.path.exists(tmp_path / 'o.yaml')
     (tmp_path / 'junk.pgm').write_bytes(b'this is no image')
     bad = write(tmp_path, 'junk.yaml', 'image: junk.pgm\nresolution: 0.05\norigin: [0, 0, 0]\n')
     code, err = run(capsys, [good, bad, '-o', str(tmp_path / 'o.yaml')])
-    assert code == 2 and 'junk.yaml' in err
+    assert code == 2 and 'junk.yaml' in err and 'junk.pgm' in err
 
 
 @pytest.mark.parametrize('res', ['0', '-1', '.nan'])
@@ -70,3 +71,14 @@ def test_duplicate_stems_and_unknown_reference(tmp_path, capsys, good):
     code, err = run(capsys, [good, '--reference', 'nobody', '-o', str(tmp_path / 'o.yaml')])
     assert code == 2 and 'nobody' in err
     assert not os.path.exists(tmp_path / 'o.yaml')
+
+
+def test_errors_through_the_script(tmp_path):
+    """The installed entry point (scripts/merge_maps) exits 2 too, message on stderr."""
+    import subprocess
+    from conftest import REPO
+    env = dict(os.environ, PYTHONPATH=os.path.join(REPO, 'src'))
+    r = subprocess.run(['/usr/bin/python3', os.path.join(REPO, 'scripts', 'merge_maps'),
+                        str(tmp_path / 'gone.yaml'), '-o', str(tmp_path / 'o.yaml')],
+                       capture_output=True, text=True, env=env, timeout=60)
+    assert r.returncode == 2 and 'gone.yaml' in r.stderr, (r.returncode, r.stderr)

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from multi_map_merge.grid import (FREE, OCCUPIED, UNKNOWN, Grid, GridError, apply_update, classify,
-                                  make_grid, rescale)
+                                  make_grid, rescale, validate)
 from multi_map_merge.mapio import MapFileError, grid_to_pgm, load_map, save_map
 
 
@@ -15,20 +15,30 @@ def test_classification_thresholds():
 @pytest.mark.parametrize('kw, reason', [
     (dict(data=np.zeros(5)), r'data length 5 != width\*height'),
     (dict(width=0, height=0, data=np.zeros(0)), 'empty grid'),
+    (dict(width=0, data=np.zeros(0)), 'empty grid: width=0'),
+    (dict(height=0, data=np.zeros(0)), 'empty grid: width=4 height=0'),
+    (dict(width=-4, height=-3), 'empty grid'),
     (dict(resolution=0.0), 'resolution must be'),
     (dict(resolution=-0.05), 'resolution must be'),
     (dict(resolution=float('nan')), 'resolution must be'),
     (dict(origin=(float('nan'), 0, 0)), 'origin is not finite'),
     (dict(origin=(0, float('inf'), 0)), 'origin is not finite'),
+    (dict(origin=(0, 0, float('-inf'))), 'origin is not finite'),
+    (dict(resolution=float('inf')), 'resolution must be'),
+    (dict(data=np.array([0] * 11 + [101])), r'outside -1..100 \(min 0, max 101\)'),
     (dict(data=np.full(12, 120)), 'outside -1..100'),
     (dict(data=np.full(12, -5)), 'outside -1..100'),
-    (dict(max_cells=10), 'too large'),
+    (dict(max_cells=10), 'too large: 4x3 = 12 cells > max_cells 10'),
 ])
 def test_validate_rejects_with_reason(kw, reason):
     args = dict(data=np.zeros(12, np.int8), width=4, height=3, resolution=0.05, origin=(0, 0, 0))
     args.update(kw)
     with pytest.raises(GridError, match=reason):
         make_grid(**args)
+
+
+def test_validate_accepts_the_edges():
+    validate(np.array([-1, 0, 100, 50], np.int8).reshape(2, 2), 2, 2, 1e-3, (0, 0, 0), 4)
 
 
 def test_make_grid_reshapes_row_major():
@@ -90,3 +100,44 @@ def test_load_map_errors_name_the_file(tmp_path):
     (tmp_path / 'bad.yaml').write_text('image: missing.pgm\nresolution: 0.05\norigin: [0, 0, 0]\n')
     with pytest.raises(MapFileError, match='bad.yaml.*cannot read image'):
         load_map(str(tmp_path / 'bad.yaml'))
+
+
+def test_rescale_real_map_never_loses_a_wall():
+    """intel at 0.05 m -> 0.1 m -> 0.05 m: every wall cell stays a wall (max-pooling), free
+    space stays mostly free, and the origin corner does not move."""
+    import os
+    from conftest import DATA
+    g = load_map(os.path.join(DATA, 'intel.yaml'))
+    coarse = rescale(g, 0.1)
+    assert coarse.origin == g.origin and coarse.resolution == 0.1
+    assert coarse.data.shape == ((g.height + 1) // 2, (g.width + 1) // 2)
+    rr, cc = np.nonzero(g.data == 100)
+    assert (coarse.data[rr // 2, cc // 2] == 100).all()
+    fine = rescale(coarse, 0.05)
+    assert fine.data.shape == g.data.shape
+    assert (fine.data[rr, cc] == 100).all()
+    free = g.data == 0
+    assert (fine.data[free] == 0).mean() > 0.8
+
+
+def test_rescale_keeps_cells_in_place_and_edges():
+    """Shrinking keeps the origin corner: fine cell (r, c) at 0.05 m lies in coarse cell
+    (r // 2, c // 2) at 0.1 m, walls on the first and last rows/columns included (an odd size
+    rounds up so nothing is cut off)."""
+    d = np.zeros((5, 7), np.int8)
+    d[0, :] = 100          # first row
+    d[:, 6] = 100          # last column (odd width)
+    d[4, 0] = 100          # last row (odd height)
+    d[2, 3] = 100          # metric centre (0.175, 0.125) -> coarse cell (1, 1)
+    c = rescale(Grid(d, 0.05, (1.0, 2.0, 0.0)), 0.1)
+    assert c.data.shape == (3, 4)
+    expect = np.zeros((3, 4), np.int8)
+    expect[0, :] = 100
+    expect[:, 3] = 100
+    expect[2, 0] = 100
+    expect[1, 1] = 100
+    assert np.array_equal(c.data, expect), c.data
+    # a non-integer factor: every wall still lands in the coarse cell containing its centre
+    c = rescale(Grid(d, 0.05, (0, 0, 0)), 0.08)
+    rr, cc = np.nonzero(d == 100)
+    assert (c.data[((rr + 0.5) * 0.05 / 0.08).astype(int), ((cc + 0.5) * 0.05 / 0.08).astype(int)] == 100).all()

@@ -143,3 +143,48 @@ def test_different_buildings_never_merge(shared_data):
         if b in m.placements():
             false.append((a, b, m.placements()[b].agreement))
     assert false == [], false
+
+
+def test_dans_maze_each_robot_map_belongs_where_the_full_map_says():
+    """The three robots and the full-map run share one world frame (spawned at the same
+    place), so each robot map belongs at about identity in the full map. tb3_0 (short run)
+    fits it there almost perfectly; tb3_1 drifted (visibly bent: at identity only ~75% of its
+    walls agree) but is still found near identity by the merger; no robot is ever misplaced.
+    Its placement in the merge, carried into the full map's frame, lands near identity too."""
+    full = load_map(os.path.join(MAZE, 'dans_maze_map.yaml'))
+    lf = full.levels()
+    robots = {n: load_map(os.path.join(MAZE, 'tb3_%d_map.yaml' % n)) for n in range(3)}
+    at_identity = {}
+    for n, g in robots.items():
+        A = pose_to_image(np.eye(3), full.resolution, full.origin, g.resolution, g.origin)
+        at_identity[n], overlap = est.agreement(lf, g.levels(), A, 2)
+        assert overlap > 0.9 * (g.data >= 0).sum()          # all of it lies inside the maze
+    assert at_identity[0] > 0.98 and at_identity[2] > 0.94, at_identity
+    assert at_identity[1] < 0.85, at_identity                 # the drifted one
+    found = {}
+    for n, g in robots.items():
+        m = merge_grids({'full': full, 'r': g})
+        if 'r' in m.placements():
+            T = m.placements()['r'].T
+            x, y, yaw = xyyaw(T)
+            assert math.hypot(x, y) < 0.3 and abs(math.degrees(yaw)) < 3.0, (n, x, y, math.degrees(yaw))
+            A = pose_to_image(T, full.resolution, full.origin, g.resolution, g.origin)
+            found[n] = est.agreement(lf, g.levels(), A, 2)[0]
+            assert found[n] >= max(0.95, at_identity[n]), (n, found[n], at_identity[n])
+    assert {1, 2} <= set(found), found
+    # the merge of the three, placed in the full map: every robot frame near identity
+    m = merge_grids({'tb3_%d' % n: g for n, g in robots.items()})
+    mf = merge_grids({'full': full, 'merged': m.compose()})
+    assert 'merged' in mf.placements()
+    T_full_merged = mf.placements()['merged'].T
+    for n, pl in m.placements().items():
+        x, y, yaw = xyyaw(T_full_merged @ pl.T)
+        assert math.hypot(x, y) < 0.3 and abs(math.degrees(yaw)) < 3.0, (n, x, y, math.degrees(yaw))
+
+
+def merge_grids(grids):
+    m = MapMerger()
+    for n, g in grids.items():
+        m.update_map(n, g)
+    m.estimate()
+    return m

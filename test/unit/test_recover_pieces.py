@@ -13,13 +13,13 @@ from multi_map_merge.synth import cut_piece, random_poses, split_rects
 from multi_map_merge.transforms import se2
 from conftest import DATA, REPO, pose_error, truth
 
-CASES = [(world, n, seed) for world in ('intel', 'aws_small_house') for n in (2, 3, 4) for seed in (0, 1)]
+CASES = [(world, n, seed) for world in ('intel', 'aws_small_house') for n in (2, 3, 4) for seed in (0, 1, 2, 3)]
 
 
 def pieces(world, n, seed):
     w = load_map(os.path.join(DATA, world + '.yaml'))
     return w, [cut_piece(w, r, p, 'p%d' % i)
-               for i, (r, p) in enumerate(zip(split_rects(w, n, 0.3), random_poses(n, seed, 5.0)))]
+               for i, (r, p) in enumerate(zip(rects(w, n), random_poses(n, seed, 5.0)))]
 
 
 @pytest.mark.parametrize('world, n, seed', CASES)
@@ -38,16 +38,23 @@ def test_core_api_recovers_every_pose(world, n, seed):
         assert np.linalg.det(pl['p%d' % i].T[:2, :2]) == pytest.approx(1.0)
 
 
+MERGED_KEYS = {'merged', 'x', 'y', 'yaw', 'reliability', 'inliers', 'agreement', 'via'}
+
+
 def check_report(report, ps, stems):
-    assert set(report) >= {'reference', 'maps'} and report['reference'] == stems[0]
+    """T.yaml's exact shape (README: reference, maps: {stem: {merged, x, y, yaw, reliability,
+    inliers, agreement, via}}) and every pose against the truth."""
+    assert set(report) == {'reference', 'maps'} and report['reference'] == stems[0]
     assert set(report['maps']) == set(stems[1:])
     for i, s in enumerate(stems[1:], 1):
         r = report['maps'][s]
-        assert r['merged'] is True
-        assert {'x', 'y', 'yaw', 'reliability', 'inliers'} <= set(r)
-        assert 0 < r['reliability'] <= 1 and r['inliers'] >= 10
+        assert set(r) == MERGED_KEYS, sorted(r)
+        assert r['merged'] is True and r['via'] in stems and r['via'] != s
+        assert all(isinstance(r[k], float) for k in ('x', 'y', 'yaw', 'reliability', 'agreement'))
+        assert isinstance(r['inliers'], int)
+        assert 0 < r['reliability'] <= 1 and r['inliers'] >= 10 and 0.8 <= r['agreement'] <= 1
         d, a = pose_error(se2(r['x'], r['y'], r['yaw']), truth(ps[0][1], ps[i][1]))
-        assert d <= 0.10 and a <= 1.0
+        assert d <= 0.10 and a <= 1.0, '%s off by %.3f m %.2f deg' % (s, d, a)
 
 
 def write_pieces(tmp_path, ps):
@@ -66,26 +73,40 @@ def test_merge_maps_cli(tmp_path, world, n):
     out, tf = str(tmp_path / 'merged.yaml'), str(tmp_path / 'T.yaml')
     assert cli.main(paths + ['-o', out, '--transforms', tf]) == 0
     check_report(yaml.safe_load(open(tf)), ps, ['robot%d' % i for i in range(n)])
-    # the merged map, seen in the world frame, is the world's content
-    merged = load_map(out)
+    check_merged_is_the_world(load_map(out), w, ps, rects(w, n))
+
+
+def rects(w, n):
+    return split_rects(w, n, 0.3)
+
+
+def check_merged_is_the_world(merged, w, ps, rs):
+    """The merged map (frame of piece 0) warped back into the world grid covers the union of
+    the cut rectangles and says there what the world says; nothing lies outside it."""
+    import cv2
+    from multi_map_merge.grid import FREE, OCCUPIED
+    from multi_map_merge.transforms import cell_to_metric, inverse
     assert merged.resolution == pytest.approx(w.resolution)
-    from multi_map_merge.transforms import apply, cell_to_metric, inverse
-    rr, cc = np.nonzero(merged.data == 100)
-    pts = apply(inverse(cell_to_metric(w.resolution, w.origin)) @ ps[0][1]
-                @ cell_to_metric(merged.resolution, merged.origin), np.stack([cc, rr], 1).astype(float))
-    ij = np.rint(pts).astype(int)
-    ok = (ij[:, 0] >= 0) & (ij[:, 0] < w.width) & (ij[:, 1] >= 0) & (ij[:, 1] < w.height)
-    assert ok.mean() > 0.99
-    near = np.zeros(ij.shape[0], bool)
-    for dr in (-1, 0, 1):
-        for dc in (-1, 0, 1):
-            r = np.clip(ij[:, 1] + dr, 0, w.height - 1)
-            c = np.clip(ij[:, 0] + dc, 0, w.width - 1)
-            near |= w.data[r, c] == 100
-    assert near.mean() > 0.97, 'merged walls off the world walls: %.3f' % near.mean()
-    # and it covers the union of the pieces (nearly all of the world's known cells in them)
-    known_world = sum(int((g.data >= 0).sum()) for g, _ in ps)
-    assert (merged.data >= 0).sum() >= 0.5 * known_world
+    # cells of the merged grid -> cells of the world grid
+    A = inverse(cell_to_metric(w.resolution, w.origin)) @ ps[0][1] @ cell_to_metric(merged.resolution, merged.origin)
+    back = cv2.warpAffine(merged.levels(), A[:2], (w.width, w.height), flags=cv2.INTER_NEAREST,
+                          borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    union = np.zeros(w.data.shape, bool)
+    for r0, r1, c0, c1 in rs:
+        union[r0:r1, c0:c1] = True
+    wl = w.levels()
+    known = union & (wl > 0)
+    covered = (back[known] > 0).mean()
+    assert covered > 0.97, 'merged map covers %.3f of the pieces\' known cells' % covered
+    assert np.count_nonzero((back > 0) & ~union) < 0.01 * np.count_nonzero(known)
+    k = np.ones((3, 3), np.uint8)
+    near_w = cv2.dilate((wl == OCCUPIED).astype(np.uint8), k) > 0
+    near_b = cv2.dilate((back == OCCUPIED).astype(np.uint8), k) > 0
+    both = known & (back > 0)
+    walls_ok = ((back == OCCUPIED) & both & near_w).sum() / max(1, ((back == OCCUPIED) & both).sum())
+    walls_kept = ((wl == OCCUPIED) & both & near_b).sum() / max(1, ((wl == OCCUPIED) & both).sum())
+    free_ok = ((back == FREE) & (wl == FREE) & both).sum() / max(1, ((wl == FREE) & both).sum())
+    assert walls_ok > 0.97 and walls_kept > 0.97 and free_ok > 0.95, (walls_ok, walls_kept, free_ok)
 
 
 def test_merge_maps_script_subprocess(tmp_path):
@@ -102,3 +123,29 @@ def test_merge_maps_script_subprocess(tmp_path):
                       truth(ps[1][1], ps[0][1]))
     assert d <= 0.10 and a <= 1.0
     assert 'robot0' in r.stdout and 'merged' in r.stdout
+
+
+def test_core_merged_map_is_the_world():
+    w, ps = pieces('aws_small_house', 4, 3)
+    m = MapMerger()
+    for i, (g, _) in enumerate(ps):
+        m.update_map('p%d' % i, g)
+    m.estimate()
+    assert len(m.placements()) == 4
+    check_merged_is_the_world(m.compose(), w, ps, rects(w, 4))
+
+
+def test_merge_maps_cli_reports_a_map_it_cannot_place(tmp_path):
+    """A map of another building is listed with merged: false and a reason, exit status 0."""
+    _, ps = pieces('intel', 2, 1)
+    paths = write_pieces(tmp_path, ps)
+    other = load_map(os.path.join(DATA, 'aws_small_house.yaml'))
+    save_map(other, str(tmp_path / 'house.yaml'))
+    tf = str(tmp_path / 'T.yaml')
+    assert cli.main(paths + [str(tmp_path / 'house.yaml'), '-o', str(tmp_path / 'm.yaml'),
+                             '--transforms', tf]) == 0
+    rep = yaml.safe_load(open(tf))
+    assert set(rep['maps']) == {'robot1', 'house'}
+    assert set(rep['maps']['house']) == {'merged', 'reason'}
+    assert rep['maps']['house']['merged'] is False and rep['maps']['house']['reason']
+    assert set(rep['maps']['robot1']) == MERGED_KEYS

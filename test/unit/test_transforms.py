@@ -61,3 +61,45 @@ def test_rigid_from_points_never_mirrors():
     mirrored = src * np.array([1, -1])
     M = rigid_from_points(src, mirrored)
     assert np.linalg.det(M[:2, :2]) == pytest.approx(1.0)
+
+
+def _centroid(levels, value):
+    rr, cc = np.nonzero(levels == value)
+    assert rr.size, 'marker %d lost' % value
+    return np.array([cc.mean(), rr.mean()])
+
+
+@pytest.mark.parametrize('pose', [(2.0, -1.5, math.pi / 2), (-3.25, 0.7, -2.6), (0.4, 4.0, 0.3),
+                                  (1.0, 1.0, math.pi)])
+def test_image_to_pose_of_true_image_transform_is_the_pose(pose):
+    """Grid B = grid A moved by a known pose (synth.cut_piece). Two 3x3 markers (an occupied
+    one and a free one, far apart, everything else unknown) give the true cell correspondence
+    B -> A independently of pose_to_image; image_to_pose of it must be that pose."""
+    from multi_map_merge.grid import FREE, OCCUPIED, Grid
+    data = np.full((120, 150), -1, np.int8)
+    data[19:22, 29:32] = 100          # occupied marker centred on (col 30, row 20)
+    data[99:102, 119:122] = 0         # free marker centred on (col 120, row 100)
+    world = Grid(data, 0.05, (-1.3, 2.1, 0.0))
+    piece, T = cut_piece(world, (0, 120, 0, 150), pose)
+    assert T == pytest.approx(se2(*pose))
+    lv = piece.levels()
+    assert np.count_nonzero(lv) in range(16, 21)          # both markers survive the warp
+    src = np.array([_centroid(lv, OCCUPIED), _centroid(lv, FREE)])
+    dst = np.array([[30.0, 20.0], [120.0, 100.0]])
+    A_true = rigid_from_points(src, dst)                  # cells of B -> cells of A
+    assert np.abs(apply(A_true, src) - dst).max() < 0.5  # a rigid fit exists: no mirror, no scale
+    T_est = image_to_pose(A_true, world.resolution, world.origin, piece.resolution, piece.origin)
+    x, y, yaw = xyyaw(T_est)
+    assert math.hypot(x - pose[0], y - pose[1]) < 0.05              # within one cell
+    assert abs((yaw - pose[2] + math.pi) % (2 * math.pi) - math.pi) < math.radians(0.6)
+
+
+def test_pose_to_image_agrees_with_cut_piece_cells():
+    """pose_to_image of the known pose maps the piece's marker onto the world's marker."""
+    from multi_map_merge.grid import OCCUPIED, Grid
+    data = np.full((60, 80), -1, np.int8)
+    data[9:12, 59:62] = 100
+    world = Grid(data, 0.1, (3.0, -4.0, 0.0))
+    piece, T = cut_piece(world, (0, 60, 0, 80), (5.0, 5.0, 2.0))
+    A = pose_to_image(T, world.resolution, world.origin, piece.resolution, piece.origin)
+    assert apply(A, _centroid(piece.levels(), OCCUPIED)[None])[0] == pytest.approx([60.0, 10.0], abs=0.5)
