@@ -1,9 +1,9 @@
 #!/usr/bin/env python3
 """Does estimation block publishing? The live node, with robots whose estimation takes seconds.
 
-    python3 bench/live_gap.py [--robots 8] [--seconds 40]    (after `make build`, setup.bash sourced)
+    python3 bench/live_gap.py [--robots 12] [--seconds 40] [--port 11800] [--no-peer]    (after `make build`, setup.bash sourced)
 
-Starts its own roscore on a free port, publishes N large robot maps (windows of the edmonton
+Starts its own roscore (port 11800, another free one if taken), publishes N large robot maps (windows of the edmonton
 ground-truth map, or of the shipped intel map without ../shared) as gmapping would, runs
 map_merge_node (merge_rate 2 Hz, tf_rate 20 Hz), and records for a while when /map messages and
 `map -> tb3_N/map` TF messages arrive, plus each estimation cycle's duration from /diagnostics.
@@ -26,8 +26,19 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 REPO = os.path.dirname(HERE)
 sys.path.insert(0, HERE)
 sys.path.insert(0, os.path.join(REPO, 'src'))
-from run_bench import PEER_WS, machine, pieces_windows, world_map  # noqa: E402
+from inputs import pieces_windows, world_map  # noqa: E402
+from peer import live_node  # noqa: E402
+from report import machine  # noqa: E402
 from multi_map_merge.mapio import save_map  # noqa: E402
+
+
+def port_free(port):
+    with socket.socket() as s:
+        try:
+            s.bind(('127.0.0.1', port))
+            return True
+        except OSError:
+            return False
 
 
 def free_port():
@@ -64,26 +75,36 @@ def measure(seconds, robots, merge_period):
     subs = [rospy.Subscriber('/map', numpy_msg(OccupancyGrid), on_map, queue_size=5, buff_size=2 ** 27),
             rospy.Subscriber('/tf', TFMessage, on_tf, queue_size=100),
             rospy.Subscriber('/diagnostics', DiagnosticArray, on_diag, queue_size=10)]
-    t_end = time.time() + seconds
+    t_start = time.time()
+    t_end = t_start + seconds
     while time.time() < t_end:
         time.sleep(0.1)
     for s in subs:
         s.unregister()
-    gaps = [b - a for a, b in zip(maps, maps[1:])]
+    # Gaps from the first /map on, the end of the window included: a node that stops publishing
+    # shows as one long open gap instead of none.
+    gaps = [b - a for a, b in zip(maps, maps[1:])] + ([t_end - maps[-1]] if maps else [seconds])
     tf_times = sorted(tfs)
     tf_gaps = [b - a for a, b in zip(tf_times, tf_times[1:])]
-    return {'map_messages': len(maps), 'max_map_gap_s': max(gaps) if gaps else None,
+    return {'window_s': seconds, 'map_messages': len(maps),
+            'first_map_after_s': (maps[0] - t_start) if maps else None,
+            'max_map_gap_s': max(gaps) if gaps else None,
             'max_map_gap_periods': (max(gaps) / merge_period) if gaps else None,
-            'tf_rate_hz': (len(tfs) / float(tf_times[-1] - tf_times[0])) if len(tfs) > 1 else 0.0,
-            'max_tf_gap_s': max(tf_gaps) if tf_gaps else None,
+            'open_gap_at_end_s': (t_end - maps[-1]) if maps else None,
+            'tf_messages': len(tfs),
+            'tf_rate_hz': (len(tfs) / float(t_end - tf_times[0])) if tfs else 0.0,
+            'max_tf_gap_s': max(tf_gaps + [t_end - tf_times[-1]]) if tf_times else None,
             'longest_estimation_s': max(est) if est else None,
             'estimation_cycles_s': sorted(set(round(e, 3) for e in est))[-5:]}
 
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
-    ap.add_argument('--robots', type=int, default=8)
+    ap.add_argument('--robots', type=int, default=12,
+                    help='robots (12 edmonton windows: estimation cycles of a few seconds here)')
     ap.add_argument('--seconds', type=float, default=40.0)
+    ap.add_argument('--port', type=int, default=11800, help='roscore port (a free one if taken)')
+    ap.add_argument('--no-peer', action='store_true', help='do not run m-explore\'s node')
     ap.add_argument('--out', default=os.path.join(HERE, 'results'))
     a = ap.parse_args()
     os.makedirs(a.out, exist_ok=True)
@@ -95,7 +116,8 @@ def main():
         p = os.path.join(tmp, r + '.yaml')
         save_map(g, p)
         paths.append(p)
-    env = dict(os.environ, ROS_MASTER_URI='http://localhost:%d' % free_port(), ROS_HOME=os.path.join(tmp, 'ros'))
+    port = a.port if port_free(a.port) else free_port()
+    env = dict(os.environ, ROS_MASTER_URI='http://localhost:%d' % port, ROS_HOME=os.path.join(tmp, 'ros'))
     os.environ.update(env)
     procs = []
 
@@ -135,27 +157,37 @@ def main():
         # measured from the start: the cold estimation of every robot happens inside the window
         results['ours'] = measure(a.seconds, robots, 0.5)
         stop([node])
-        peer = os.path.join(PEER_WS, 'devel', 'lib', 'multirobot_map_merge', 'map_merge')
-        if os.path.exists(peer):
+        peer = None if a.no_peer else live_node()
+        if peer:
             node = start([peer, '_known_init_poses:=false', '_merging_rate:=2.0', '_discovery_rate:=0.5',
                           '_estimation_rate:=1.0'], 'mexplore.log')
             results['mexplore'] = measure(a.seconds, robots, 0.5)
             stop([node])
         else:
-            results['mexplore'] = 'not built (../shared/peers/mexplore/build.sh)'
+            results['mexplore'] = ('not measured (--no-peer)' if a.no_peer else
+                                   'NOT measured: m-explore is not built (../shared/peers/mexplore/build.sh)')
     finally:
         stop(list(reversed(procs)))
-    print(json.dumps(results, indent=1))
-    o = results['ours']
-    print('\nours: max /map gap %.2f s = %.2f merge periods (target <= 1.5), TF %.1f Hz (max gap %.2f s), '
-          'longest estimation cycle %.2f s' % (o['max_map_gap_s'] or -1, o['max_map_gap_periods'] or -1,
-                                                 o['tf_rate_hz'], o['max_tf_gap_s'] or -1, o['longest_estimation_s'] or -1))
-    if isinstance(results['mexplore'], dict):
-        p = results['mexplore']
-        print('m-explore: max /map gap %s s = %s merge periods, %d /map messages in %.0f s (it sends no TF)'
-              % (p['max_map_gap_s'], p['max_map_gap_periods'], p['map_messages'], a.seconds))
     with open(os.path.join(a.out, 'live.json'), 'w') as f:
         json.dump(results, f, indent=1)
+    print(json.dumps(results, indent=1))
+    o = results['ours']
+    f = lambda v, fmt='%.2f': '-' if v is None else fmt % v  # noqa: E731
+    print('\nLIVE NODE, %d robots of %d cells each, merge_rate 2 Hz, %.0f s window' % (
+        a.robots, results['map_cells'], a.seconds))
+    print('ours:      %3d /map (first after %s s), max /map gap %s s = %s merge periods (target <= 1.5); '
+          'TF map -> tb3_N/map %.1f Hz (target 20, max gap %s s); longest estimation cycle %s s' % (
+              o['map_messages'], f(o['first_map_after_s'], '%.1f'), f(o['max_map_gap_s']),
+              f(o['max_map_gap_periods']), o['tf_rate_hz'], f(o['max_tf_gap_s']), f(o['longest_estimation_s'])))
+    if isinstance(results['mexplore'], dict):
+        p = results['mexplore']
+        print('m-explore: %3d /map (first after %s s), max /map gap %s%s s = %s merge periods '
+              '(end of window included); it broadcasts no TF' % (
+                  p['map_messages'], f(p['first_map_after_s'], '%.1f'), '>= ' if not p['map_messages'] else '',
+                  f(p['max_map_gap_s']),
+                  f(p['max_map_gap_periods'])))
+    else:
+        print('m-explore:', results['mexplore'])
 
 
 if __name__ == '__main__':

@@ -1,0 +1,84 @@
+"""The benchmark's inputs: robots' maps cut out of real maps, written as map_server files.
+
+Both mergers read the very same files. Where the maps are cut from a ground-truth map
+(``synth.split_rects`` / windows + ``cut_piece`` at ``random_poses``), the true pose of every
+robot's map frame is known and returned, so both mergers' answers can be scored.
+"""
+from __future__ import annotations
+
+import glob
+import os
+import sys
+
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+REPO = os.path.dirname(HERE)
+sys.path.insert(0, os.path.join(REPO, 'src'))
+SHARED = os.path.abspath(os.path.join(REPO, '..', 'shared'))
+DATA = os.path.join(SHARED, 'data')
+
+from multi_map_merge.grid import known_bbox  # noqa: E402
+from multi_map_merge.mapio import load_map, save_map  # noqa: E402
+from multi_map_merge.synth import cut_piece, random_poses, split_rects  # noqa: E402
+
+
+def world_map(name):
+    """A ground-truth map from ../shared/data, or the project's own intel map; None if absent."""
+    own = {'intel': os.path.join(REPO, 'test', 'data', 'intel.yaml')}
+    path = os.path.join(DATA, 'ground_truth', '%s_gt.yaml' % name)
+    if not os.path.exists(path):
+        path = own.get(name)
+    return load_map(path) if path and os.path.exists(path) else None
+
+
+def pieces_split(world, n, seed=0, overlap=0.3):
+    """n overlapping pieces tiling the world (split_rects), each at a random pose: [(grid, T)]."""
+    return [cut_piece(world, r, p) for r, p in zip(split_rects(world, n, overlap), random_poses(n, seed))]
+
+
+def pieces_windows(world, n, frac=0.6, seed=0):
+    """n world-sized robots: random windows of ``frac`` of the world each (all pairs overlap,
+    the worst case for estimation), each at a random pose: [(grid, T)]."""
+    rng = np.random.default_rng(seed)
+    r0, r1, c0, c1 = known_bbox(world.levels())
+    h, w = int((r1 - r0) * frac), int((c1 - c0) * frac)
+    out = []
+    for p in random_poses(n, seed + 1):
+        a = int(rng.integers(r0, r1 - h + 1))
+        b = int(rng.integers(c0, c1 - w + 1))
+        out.append(cut_piece(world, (a, a + h, b, b + w), p))
+    return out
+
+
+def write_inputs(name, grids_truth, root):
+    """Write the robots' maps as ``root/name/rNN.yaml``; returns (paths, truths or None), truths
+    being the pose of every map frame in map 0's frame (3x3 lists)."""
+    d = os.path.join(root, name)
+    os.makedirs(d, exist_ok=True)
+    paths, truths = [], []
+    for k, (g, T) in enumerate(grids_truth):
+        p = os.path.join(d, 'r%02d.yaml' % k)
+        save_map(g, p)
+        paths.append(p)
+        truths.append(T)
+    if truths[0] is None:
+        return paths, None
+    return paths, [(np.linalg.inv(truths[0]) @ T).tolist() for T in truths]
+
+
+def configurations(quick=False):
+    """[(name, kind, [(grid, T or None)])]: kind 'size' rows sweep the map size at 4 robots,
+    kind 'count' rows sweep the robot count on intel-sized maps."""
+    confs = []
+    house = sorted(glob.glob(os.path.join(DATA, 'tb3_house', 'tb3_*_map.yaml')))
+    if house:
+        confs.append(('house 4', 'size', [(load_map(p), None) for p in house]))
+    for name in (['intel'] if quick else ['intel', 'aces', 'edmonton']):
+        w = world_map(name)
+        if w is not None:
+            confs.append(('%s 4' % name, 'size', pieces_split(w, 4)))
+    w = world_map('intel')
+    for n in ([2, 4, 8] if quick else [2, 4, 8, 16, 32]):
+        confs.append(('intel-sized x%d' % n, 'count', pieces_windows(w, n)))
+    return confs

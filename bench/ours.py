@@ -1,0 +1,142 @@
+#!/usr/bin/env python3
+"""Our side of one benchmark configuration, run in a fresh process (so its peak RSS is its own).
+
+    python3 bench/ours.py SPEC.json      -> one JSON line on stdout
+
+SPEC: {"paths": [map yaml...], "truth": [3x3 pose of map k in map 0's frame] or null,
+"reps": R, "pairs": [[a, b], ...]}. Measures, with the project's defaults (MergeConfig()):
+  features_ms   FeatureExtractor on one map's levels (median over the maps of the pairs, R reps)
+  pair_ms       MapMerger.estimate_grids(a, b): matching + RANSAC + verification + ICP, in this
+                process (median over the pairs, R reps)
+  cold_ms       estimate() of a new MapMerger holding every map (features + every pair + placement,
+                in the merger's worker processes as the node runs it)
+  warm_ms       estimate() again with unchanged maps
+  compose_ms    compose() of that merger for the first time (every map warped)
+  publish_ms    ros_adapter.grid_to_msg (numpy_msg OccupancyGrid) + msg.serialize(BytesIO)
+  rss_mb        peak RSS: this process's ru_maxrss plus each worker process's VmHWM
+and the placements, scored against ``truth`` when given.
+"""
+import io
+import json
+import math
+import os
+import resource
+import sys
+import time
+
+import numpy as np
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), 'src'))
+
+
+def worker_peaks_mb():
+    """VmHWM of the merger's estimation workers (forkserver children, not ours: read /proc)."""
+    import multi_map_merge.merger as mm
+    total = 0.0
+    if mm._POOL is not None:
+        for pid in list(mm._POOL._processes):
+            try:
+                with open('/proc/%d/status' % pid) as f:
+                    total += [int(l.split()[1]) for l in f if l.startswith('VmHWM')][0] / 1024.0
+            except (OSError, IndexError):
+                pass
+    return total
+
+
+def score(placements, truth, n):
+    """Per placed robot (reference excluded): (translation error m, rotation error deg)."""
+    from multi_map_merge.transforms import pose_distance
+    errs = {}
+    if truth is None:
+        return errs
+    for k in range(1, n):
+        name = 'r%02d' % k
+        if name in placements:
+            d, a = pose_distance(placements[name].T, np.array(truth[k]))
+            errs[name] = (float(d), math.degrees(float(a)))
+    return errs
+
+
+def main():
+    spec = json.load(open(sys.argv[1]))
+    import rospy
+    from multi_map_merge.config import MergeConfig
+    from multi_map_merge.features import FeatureExtractor
+    from multi_map_merge.mapio import load_map
+    import multi_map_merge.merger as mm
+    from multi_map_merge.merger import MapMerger, RobotMap
+    from multi_map_merge.ros_adapter import grid_to_msg
+
+    paths, truth, reps = spec['paths'], spec.get('truth'), int(spec['reps'])
+    pairs = [tuple(p) for p in spec['pairs']]
+    grids = [load_map(p) for p in paths]
+    cfg = MergeConfig()
+    med = lambda v: float(np.median(v)) * 1000.0  # noqa: E731
+
+    # (1) features of one map, as the merger computes them
+    fe = FeatureExtractor(cfg.akaze_threshold, cfg.max_features, cfg.feature_cells)
+    feat = []
+    for k in sorted({k for ab in pairs for k in ab}):
+        lv = grids[k].levels(cfg.free_thresh, cfg.occupied_thresh)
+        for _ in range(reps):
+            t = time.perf_counter()
+            fe(lv)
+            feat.append(time.perf_counter() - t)
+
+    # (2)-(4) one pair in this process: features cached first, so only the pair is timed
+    m0 = MapMerger(cfg)
+    rms = [RobotMap('r%02d' % k, g, k + 1, 0.0).at(g.resolution) for k, g in enumerate(grids)]
+    pair = []
+    for a, b in pairs:
+        m0._features_of(rms[a])
+        m0._features_of(rms[b])
+        for _ in range(reps):
+            t = time.perf_counter()
+            m0.estimate_grids(rms[a], rms[b])
+            pair.append(time.perf_counter() - t)
+
+    # full cycle: cold (new merger), warm (unchanged maps), compositing, publishing
+    cold, warm, comp, comp_again, pub = [], [], [], [], []
+    for _ in range(reps):
+        m = MapMerger(cfg)
+        for k, g in enumerate(grids):
+            m.update_map('r%02d' % k, g)
+        t = time.perf_counter()
+        m.estimate()
+        cold.append(time.perf_counter() - t)
+        t = time.perf_counter()
+        m.estimate()
+        warm.append(time.perf_counter() - t)
+        t = time.perf_counter()
+        merged = m.compose()
+        comp.append(time.perf_counter() - t)
+        t = time.perf_counter()
+        m.compose()
+        comp_again.append(time.perf_counter() - t)
+        t = time.perf_counter()
+        msg = grid_to_msg(merged, rospy.Time(0), 'map')
+        buf = io.BytesIO()
+        msg.serialize(buf)
+        pub.append(time.perf_counter() - t)
+
+    P = m.placements()
+    errs = score(P, truth, len(grids))
+    print(json.dumps({
+        'features_ms': med(feat), 'pair_ms': med(pair), 'cold_ms': med(cold), 'warm_ms': med(warm),
+        'cold_first_ms': cold[0] * 1000.0,
+        'compose_ms': med(comp), 'compose_again_ms': med(comp_again), 'publish_ms': med(pub),
+        'published_bytes': buf.tell(),
+        'rss_mb': resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0 + worker_peaks_mb(),
+        'rss_self_mb': resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+        'workers': len(mm._POOL._processes) if mm._POOL is not None else 1,
+        'robots': len(grids), 'placed': len(P) - 1,
+        'errors': errs,
+        'max_err_m': max([e[0] for e in errs.values()]) if errs else None,
+        'max_err_deg': max([e[1] for e in errs.values()]) if errs else None,
+        'merged_cells': int(merged.width * merged.height),
+        'map_cells': int(np.median([g.width * g.height for g in grids])),
+    }))
+
+
+if __name__ == '__main__':
+    main()

@@ -1,0 +1,123 @@
+"""m-explore's side: ../shared/peers/mexplore/merge_maps_mexplore on the very same map files.
+
+Its tool prints only the median estimation and compositing times of a whole run, so:
+  features per map  = estimation of a run on that one map (AKAZE only: with one image there is
+                      nothing to match);
+  per pair          = estimation of a run on the two maps minus both maps' feature times
+                      (matching + bundle adjustment of one pair);
+  peak RSS          = ru_maxrss of the mexplore_merge process itself (wait4 on it, through a
+                      wrapper placed in a private PEER_WS, so the Python front end is not counted).
+Nothing of m-explore is part of the project; when ../shared is absent every call here says so.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import subprocess
+import tempfile
+import time
+
+import numpy as np
+
+from inputs import SHARED
+
+PEER = os.path.join(SHARED, 'peers', 'mexplore')
+PEER_WS = os.environ.get('PEER_WS', '/tmp/peer_ws')
+ENV = dict(os.environ, PATH='/usr/bin:/bin:' + os.environ.get('PATH', ''))
+
+_WRAPPER = r'''#!/usr/bin/python3
+import os, subprocess, sys
+p = subprocess.Popen([%(real)r] + sys.argv[1:])
+_, status, ru = os.wait4(p.pid, 0)
+with open(%(rss)r, 'a') as f:
+    f.write('%%d\n' %% ru.ru_maxrss)
+sys.exit(os.waitstatus_to_exitcode(status))
+'''
+
+
+def available():
+    """(True, '') or (False, why): builds the peer with its build.sh when ../shared is here
+    but PEER_WS is not built yet."""
+    if not os.path.isdir(PEER):
+        return False, '../shared/peers/mexplore is absent: m-explore columns NOT measured'
+    if not os.path.exists(os.path.join(PEER_WS, 'mexplore_merge')):
+        print('building m-explore into %s (../shared/peers/mexplore/build.sh) ...' % PEER_WS, flush=True)
+        r = subprocess.run([os.path.join(PEER, 'build.sh')], capture_output=True, text=True, env=ENV)
+        if r.returncode != 0 or not os.path.exists(os.path.join(PEER_WS, 'mexplore_merge')):
+            return False, 'm-explore did not build: %s' % (r.stdout + r.stderr)[-500:]
+    return True, ''
+
+
+def live_node():
+    p = os.path.join(PEER_WS, 'devel', 'lib', 'multirobot_map_merge', 'map_merge')
+    return p if os.path.exists(p) else None
+
+
+class Peer:
+    def __init__(self, root):
+        self.root = tempfile.mkdtemp(prefix='peer_', dir=root)
+        self.ws = os.path.join(self.root, 'ws')
+        os.makedirs(self.ws)
+        self.rss_file = os.path.join(self.root, 'rss.txt')
+        w = os.path.join(self.ws, 'mexplore_merge')
+        with open(w, 'w') as f:
+            f.write(_WRAPPER % {'real': os.path.join(PEER_WS, 'mexplore_merge'), 'rss': self.rss_file})
+        os.chmod(w, 0o755)
+        self.n = 0
+
+    def run(self, paths, reps):
+        """One merge_maps_mexplore run: (timing JSON, T.yaml report, peak RSS MB, wall s)."""
+        import yaml
+        self.n += 1
+        out = os.path.join(self.root, 'run%03d' % self.n)
+        os.makedirs(out)
+        if os.path.exists(self.rss_file):
+            os.remove(self.rss_file)
+        cmd = [os.path.join(PEER, 'merge_maps_mexplore')] + list(paths) + [
+            '-o', os.path.join(out, 'm.yaml'), '--transforms', os.path.join(out, 'T.yaml'), '--reps', str(reps)]
+        t = time.time()
+        r = subprocess.run(cmd, capture_output=True, text=True, env=dict(ENV, PEER_WS=self.ws))
+        wall = time.time() - t
+        if r.returncode != 0:
+            raise RuntimeError('m-explore failed: %s' % r.stderr[-300:])
+        timing = json.loads(r.stdout.strip().splitlines()[-1])
+        rep = yaml.safe_load(open(os.path.join(out, 'T.yaml')))
+        rss = max(int(x) for x in open(self.rss_file).read().split()) / 1024.0
+        return timing, rep, rss, wall
+
+    def measure(self, paths, truth, reps, pairs, full=True):
+        """m-explore's figures for one configuration (see module docstring)."""
+        from multi_map_merge.transforms import pose_distance, se2
+        res = {}
+        feat = {}
+        for k in sorted({k for ab in pairs for k in ab}):
+            timing, _, _, _ = self.run([paths[k]], reps)
+            feat[k] = timing['estimate_ms']
+        res['features_ms'] = float(np.median(list(feat.values())))
+        pair = []
+        for a, b in pairs:
+            timing, _, _, _ = self.run([paths[a], paths[b]], reps)
+            pair.append(timing['estimate_ms'] - feat[a] - feat[b])
+        res['pair_ms'] = float(np.median(pair))
+        if not full:
+            return res
+        timing, rep, rss, wall = self.run(paths, reps)
+        stems = [os.path.splitext(os.path.basename(p))[0] for p in paths]
+        placed = sum(1 for v in rep['maps'].values() if v.get('merged'))
+        errs = {}
+        if truth is not None and rep['reference'] in stems:
+            j = stems.index(rep['reference'])
+            for k, s in enumerate(stems):
+                v = rep['maps'].get(s)
+                if v and v.get('merged'):
+                    T_true = np.linalg.inv(np.array(truth[j])) @ np.array(truth[k])
+                    d, ang = pose_distance(se2(v['x'], v['y'], v['yaw']), T_true)
+                    errs[s] = (float(d), math.degrees(float(ang)))
+        res.update({'estimate_ms': timing['estimate_ms'], 'compose_ms': timing['compose_ms'],
+                    'rss_mb': rss, 'placed': placed, 'reference': rep['reference'], 'errors': errs,
+                    'scales': [round(v['scale'], 4) for v in rep['maps'].values() if v.get('merged')],
+                    'max_err_m': max([e[0] for e in errs.values()]) if errs else None,
+                    'max_err_deg': max([e[1] for e in errs.values()]) if errs else None,
+                    'wall_s': wall})
+        return res

@@ -1,0 +1,77 @@
+#!/usr/bin/env python3
+"""Where does our estimation time go? cProfile of one cold estimation cycle, run inline
+(MergeConfig(workers=1): the worker pool would hide the work from the profiler).
+
+    python3 bench/profile_core.py [edmonton4|intel8|intel16|house4 ...] [--top 25]
+
+Prints, per configuration, the functions with the most own time and the most cumulative time,
+and writes results/profile_<config>.txt. Not part of `make bench` (the lead optimises the core
+with it); the inputs are the same as run_bench.py's rows.
+"""
+from __future__ import annotations
+
+import argparse
+import cProfile
+import io
+import os
+import pstats
+import sys
+import time
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, HERE)
+
+import inputs  # noqa: E402
+
+CONFIGS = {
+    'house4': lambda: [(inputs.load_map(p), None) for p in sorted(
+        __import__('glob').glob(os.path.join(inputs.DATA, 'tb3_house', 'tb3_*_map.yaml')))],
+    'intel4': lambda: inputs.pieces_split(inputs.world_map('intel'), 4),
+    'edmonton4': lambda: inputs.pieces_split(inputs.world_map('edmonton'), 4),
+    'intel8': lambda: inputs.pieces_windows(inputs.world_map('intel'), 8),
+    'intel16': lambda: inputs.pieces_windows(inputs.world_map('intel'), 16),
+}
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    ap.add_argument('configs', nargs='*', default=['edmonton4', 'intel16'], choices=sorted(CONFIGS))
+    ap.add_argument('--top', type=int, default=25)
+    ap.add_argument('--out', default=os.path.join(HERE, 'results'))
+    a = ap.parse_args()
+    os.makedirs(a.out, exist_ok=True)
+    from multi_map_merge.config import MergeConfig
+    from multi_map_merge.merger import MapMerger
+    for name in a.configs:
+        grids = [g for g, _ in CONFIGS[name]()]
+        m = MapMerger(MergeConfig(workers=1))
+        for k, g in enumerate(grids):
+            m.update_map('r%02d' % k, g)
+        prof = cProfile.Profile()
+        t = time.perf_counter()
+        prof.enable()
+        m.estimate()
+        prof.disable()
+        wall = time.perf_counter() - t
+        t = time.perf_counter()
+        prof2 = cProfile.Profile()
+        prof2.enable()
+        m.compose()
+        prof2.disable()
+        wall_c = time.perf_counter() - t
+        buf = io.StringIO()
+        buf.write('%s: %d robots, cold estimate inline %.2f s (profiled), placed %d; compose %.3f s\n'
+                  % (name, len(grids), wall, len(m.placements()) - 1, wall_c))
+        for title, p, key in (('own time', prof, 'tottime'), ('cumulative', prof, 'cumulative'),
+                              ('compose, cumulative', prof2, 'cumulative')):
+            buf.write('\n--- estimate, %s ---\n' % title if p is prof else '\n--- %s ---\n' % title)
+            st = pstats.Stats(p, stream=buf)
+            st.strip_dirs().sort_stats(key).print_stats(a.top if p is prof else 12)
+        text = buf.getvalue()
+        print(text)
+        with open(os.path.join(a.out, 'profile_%s.txt' % name), 'w') as f:
+            f.write(text)
+
+
+if __name__ == '__main__':
+    main()

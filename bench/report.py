@@ -1,0 +1,148 @@
+"""Machine description, the printed tables and the plot."""
+from __future__ import annotations
+
+import os
+import platform
+import time
+
+TOL_M, TOL_DEG = 0.5, 3.0   # a placement within these of the truth counts as correct
+
+
+def machine():
+    info = {'nproc': len(os.sched_getaffinity(0)), 'cpu_count': os.cpu_count(), 'cpu_model': '',
+            'mem_total_mb': None, 'python': platform.python_version(), 'kernel': platform.release(),
+            'date': time.strftime('%Y-%m-%d %H:%M:%S')}
+    try:
+        with open('/proc/cpuinfo') as f:
+            for line in f:
+                if line.startswith('model name'):
+                    info['cpu_model'] = line.split(':', 1)[1].strip()
+                    break
+        with open('/proc/meminfo') as f:
+            kb = [l for l in f if l.startswith('MemTotal')][0].split()[1]
+        info['mem_total_mb'] = int(kb) // 1024
+    except (OSError, IndexError):
+        pass
+    try:
+        import cv2
+        info['opencv'] = cv2.__version__
+        info['opencv_threads'] = cv2.getNumThreads()
+    except ImportError:
+        pass
+    return info
+
+
+def correct(side):
+    """Robots placed within TOL_M / TOL_DEG of the truth (None when the truth is unknown)."""
+    errs = side.get('errors')
+    if not errs and side.get('max_err_m') is None:
+        return None
+    return sum(1 for d, a in errs.values() if d <= TOL_M and a <= TOL_DEG)
+
+
+def _r(a, b):
+    return None if a is None or b is None or not b else a / b
+
+
+def _f(v, fmt='%.0f'):
+    if v is None:
+        return '-'
+    if fmt == '%.2fx' and 0 < v < 0.01:
+        return '%.1ex' % v      # warm cycles are thousands of times shorter
+    return fmt % v
+
+
+def rows_table(rows, peer_note):
+    """The two printed tables (time; memory and correctness) as one string."""
+    out = []
+    if peer_note:
+        out.append('NOTE: %s' % peer_note)
+    cols = ('input', 'cells', 'N', 'feat/map ms', 'pair ms', 'est cold ms', 'est warm ms',
+            'compose+publ ms')
+    h = '%-16s %5s %3s | %-21s | %-21s | %-24s | %-18s | %-26s' % cols
+    out += ['', 'TIME  (each cell: ours / m-explore = ratio; ratio < 1: we are faster)', h, '-' * len(h)]
+    for r in rows:
+        o, p = r['ours'], r['peer']
+
+        def trip(a, b, fa='%.1f', fb='%.1f'):
+            return '%s / %s = %s' % (_f(a, fa), _f(b, fb), _f(_r(a, b), '%.2fx'))
+        cp = o['compose_ms'] + o['publish_ms']
+        out.append('%-16s %5s %3d | %-21s | %-21s | %-24s | %-18s | %-26s' % (
+            r['name'], '%dk' % (o['map_cells'] // 1000), r['robots'],
+            trip(o['features_ms'], p.get('features_ms')), trip(o['pair_ms'], p.get('pair_ms'), '%.0f', '%.0f'),
+            trip(o['cold_ms'], p.get('estimate_ms'), '%.0f', '%.0f'),
+            trip(o['warm_ms'], p.get('estimate_ms'), '%.2f', '%.0f'),
+            '%.1f+%.1f / %s = %s' % (o['compose_ms'], o['publish_ms'], _f(p.get('compose_ms'), '%.1f'),
+                                     _f(_r(cp, p.get('compose_ms')), '%.2fx'))))
+    h = '%-16s %3s | %-24s | %-13s | %-38s' % ('input', 'N', 'peak RSS MB', 'placed (ok)', 'max error: ours | m-explore')
+    out += ['', 'MEMORY AND CORRECTNESS  (placed: robots put in the merged frame besides the reference; '
+            'ok: within %.1f m and %.0f deg of the truth)' % (TOL_M, TOL_DEG), h, '-' * len(h)]
+    for r in rows:
+        o, p = r['ours'], r['peer']
+
+        def pl(s):
+            if s.get('placed') is None:
+                return '-'
+            c = correct(s)
+            return '%d%s' % (s['placed'], '' if c is None else ' (%d)' % c)
+
+        def er(s):
+            return '%s m %s deg' % (_f(s.get('max_err_m'), '%.3f'), _f(s.get('max_err_deg'), '%.2f'))
+        out.append('%-16s %3d | %-24s | %-13s | %-38s' % (
+            r['name'], r['robots'],
+            '%.0f / %s = %s' % (o['rss_mb'], _f(p.get('rss_mb')), _f(_r(o['rss_mb'], p.get('rss_mb')), '%.2fx')),
+            '%s / %s' % (pl(o), pl(p)), '%s | %s' % (er(o), er(p) if p.get('placed') is not None
+                                                      else p.get('skipped', '-'))))
+    return '\n'.join(out)
+
+
+def plot(rows, path):
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots(1, 3, figsize=(17, 4.8))
+    sweep = [r for r in rows if r['kind'] == 'count']
+    sizes = [r for r in rows if r['kind'] == 'size']
+
+    def series(a, rs, x, side, key, style, label):
+        pts = [(x(r), r[side][key]) for r in rs if r[side].get(key) is not None]
+        if pts:
+            a.plot(*zip(*pts), style, label=label)
+
+    n = lambda r: r['robots']  # noqa: E731
+    series(ax[0], sweep, n, 'ours', 'cold_ms', 'o-', 'ours: estimation, cold')
+    series(ax[0], sweep, n, 'peer', 'estimate_ms', 'o--', 'm-explore: estimation')
+    series(ax[0], sweep, n, 'ours', 'warm_ms', 'd-', 'ours: estimation, warm')
+    series(ax[0], sweep, n, 'ours', 'compose_ms', 's-', 'ours: compositing')
+    series(ax[0], sweep, n, 'peer', 'compose_ms', 's--', 'm-explore: compositing')
+    ax[0].set_xscale('log', base=2)
+    ax[0].set_xlabel('robots (intel-sized maps, all overlapping)')
+    ax[0].set_title('time against robot count')
+
+    cells = lambda r: r['ours']['map_cells']  # noqa: E731
+    series(ax[1], sizes, cells, 'ours', 'cold_ms', 'o-', 'ours: estimation (4 robots), cold')
+    series(ax[1], sizes, cells, 'peer', 'estimate_ms', 'o--', 'm-explore: estimation (4 robots)')
+    series(ax[1], sizes, cells, 'ours', 'pair_ms', '^-', 'ours: one pair')
+    series(ax[1], sizes, cells, 'peer', 'pair_ms', '^--', 'm-explore: one pair')
+    series(ax[1], sizes, cells, 'ours', 'features_ms', 'v-', 'ours: features of one map')
+    series(ax[1], sizes, cells, 'peer', 'features_ms', 'v--', 'm-explore: features of one map')
+    for r in sizes:
+        ax[1].annotate(r['name'].split()[0], (cells(r), r['ours']['cold_ms']), fontsize=8)
+    ax[1].set_xscale('log')
+    ax[1].set_xlabel('cells per robot map (median)')
+    ax[1].set_title('time against map size')
+    for a in ax[:2]:
+        a.set_yscale('log')
+        a.set_ylabel('ms')
+
+    series(ax[2], sweep, n, 'ours', 'rss_mb', 'o-', 'ours (process + workers)')
+    series(ax[2], sweep, n, 'peer', 'rss_mb', 'o--', 'm-explore')
+    ax[2].set_xscale('log', base=2)
+    ax[2].set_xlabel('robots (intel-sized maps)')
+    ax[2].set_ylabel('peak RSS, MB')
+    ax[2].set_title('peak memory against robot count')
+    for a in ax:
+        a.grid(True, which='both', alpha=.3)
+        a.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
