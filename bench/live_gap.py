@@ -1,7 +1,10 @@
 #!/usr/bin/env python3
 """Does estimation block publishing? The live node, with robots whose estimation takes seconds.
 
-    python3 bench/live_gap.py [--robots 12] [--seconds 40] [--port 11800] [--no-peer]    (after `make build`, setup.bash sourced)
+    python3 bench/live_gap.py [--robots 8] [--seconds 30] [--port 11800] [--no-peer] [--no-build]
+
+Runs `make build` first (unless --no-build) and takes the environment of the workspace's
+devel/setup.bash, so it needs nothing sourced.
 
 Starts its own roscore (port 11800, another free one if taken), publishes N large robot maps (windows of the edmonton
 ground-truth map, or of the shipped intel map without ../shared) as gmapping would, runs
@@ -45,6 +48,30 @@ def free_port():
     with socket.socket() as s:
         s.bind(('127.0.0.1', 0))
         return s.getsockname()[1]
+
+
+def ros_env(build=True):
+    """The environment of the catkin workspace (`make build` first): os.environ + setup.bash."""
+    ws = None
+    if build:
+        r = subprocess.run(['make', '-C', REPO, 'build'], capture_output=True, text=True,
+                           env=dict(os.environ, PATH='/usr/bin:/bin:/usr/sbin:/sbin:' + os.environ.get('PATH', '')))
+        if r.returncode != 0:
+            sys.exit('make build failed:\n' + (r.stdout + r.stderr)[-2000:])
+        for line in r.stdout.splitlines():
+            if line.startswith('built: '):
+                ws = line.split(': ', 1)[1].strip()
+    if ws is None:   # the Makefile's WS: /tmp/multi_map_merge_ws_<md5 of the clone's path>[:8]
+        import hashlib
+        ws = '/tmp/multi_map_merge_ws_' + hashlib.md5((REPO + '\n').encode()).hexdigest()[:8]
+    setup = os.path.join(ws, 'devel', 'setup.bash')
+    if not os.path.exists(setup):
+        sys.exit('%s is missing: run `make build` first' % setup)
+    out = subprocess.run(['bash', '-c', 'source %s && env -0' % setup], capture_output=True,
+                         env=dict(os.environ, PATH='/usr/bin:/bin:' + os.environ.get('PATH', ''))).stdout
+    env = dict(kv.split('=', 1) for kv in out.decode().split('\0') if '=' in kv)
+    env['PATH'] = '/usr/bin:/bin:' + env.get('PATH', '')
+    return env
 
 
 def measure(seconds, robots, merge_period):
@@ -100,9 +127,10 @@ def measure(seconds, robots, merge_period):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
-    ap.add_argument('--robots', type=int, default=12,
-                    help='robots (12 edmonton windows: estimation cycles of a few seconds here)')
-    ap.add_argument('--seconds', type=float, default=40.0)
+    ap.add_argument('--robots', type=int, default=8,
+                    help='robots (windows of half edmonton, about 1.8 M cells: estimation cycles of seconds)')
+    ap.add_argument('--seconds', type=float, default=30.0)
+    ap.add_argument('--no-build', action='store_true', help='skip `make build` (workspace already built)')
     ap.add_argument('--port', type=int, default=11800, help='roscore port (a free one if taken)')
     ap.add_argument('--no-peer', action='store_true', help='do not run m-explore\'s node')
     ap.add_argument('--out', default=os.path.join(HERE, 'results'))
@@ -111,13 +139,15 @@ def main():
     world = world_map('edmonton') or world_map('intel')
     tmp = tempfile.mkdtemp(prefix='mmm_live_')
     robots = ['tb3_%d' % k for k in range(a.robots)]
-    paths = []
+    paths, cells = [], []
     for r, (g, _) in zip(robots, pieces_windows(world, a.robots, 0.5)):
         p = os.path.join(tmp, r + '.yaml')
         save_map(g, p)
         paths.append(p)
+        cells.append(g.width * g.height)
     port = a.port if port_free(a.port) else free_port()
-    env = dict(os.environ, ROS_MASTER_URI='http://localhost:%d' % port, ROS_HOME=os.path.join(tmp, 'ros'))
+    env = dict(ros_env(not a.no_build), ROS_MASTER_URI='http://localhost:%d' % port, ROS_HOME=os.path.join(tmp, 'ros'),
+               ROS_LOG_DIR=os.path.join(tmp, 'ros', 'log'))
     os.environ.update(env)
     procs = []
 
@@ -139,7 +169,9 @@ def main():
             except subprocess.TimeoutExpired:
                 os.killpg(p.pid, signal.SIGKILL)
 
-    results = {'machine': machine(), 'robots': a.robots, 'map_cells': int(world.width * world.height * 0.25)}
+    results = {'machine': machine(), 'robots': a.robots, 'map_cells': int(sorted(cells)[len(cells) // 2]),
+               'settings': {'publish_maps': '--steps 1 --period 5', 'merge_rate': 2.0, 'tf_rate': 20.0,
+                            'merge_period_s': 0.5, 'estimation_rate': 'node default'}}
     try:
         start(['roscore', '-p', env['ROS_MASTER_URI'].rsplit(':', 1)[1]], 'roscore.log')
         import rosgraph
@@ -149,11 +181,11 @@ def main():
                 break
             time.sleep(0.2)
         rospy.init_node('live_gap', anonymous=True)
-        start(['rosrun', 'multi_map_merge', 'publish_maps', '--steps', '4', '--period', '6']
+        start(['rosrun', 'multi_map_merge', 'publish_maps', '--steps', '1', '--period', '5']
               + ['%s:%s' % (r, p) for r, p in zip(robots, paths)], 'publish.log')
         time.sleep(2.0)
-        node = start(['rosrun', 'multi_map_merge', 'map_merge_node', '_merge_rate:=2.0', '_tf_rate:=20.0',
-                      '_estimation_rate:=1.0'], 'ours.log')
+        node = start(['rosrun', 'multi_map_merge', 'map_merge_node', '_merge_rate:=2.0', '_tf_rate:=20.0'],
+                     'ours.log')
         # measured from the start: the cold estimation of every robot happens inside the window
         results['ours'] = measure(a.seconds, robots, 0.5)
         stop([node])

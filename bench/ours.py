@@ -8,6 +8,7 @@ SPEC: {"paths": [map yaml...], "truth": [3x3 pose of map k in map 0's frame] or 
   features_ms   FeatureExtractor on one map's levels (median over the maps of the pairs, R reps)
   pair_ms       MapMerger.estimate_grids(a, b): matching + RANSAC + verification + ICP, in this
                 process (median over the pairs, R reps)
+  pool_start_ms starting the merger's worker pool (once per node; not part of cold_ms)
   cold_ms       estimate() of a new MapMerger holding every map (features + every pair + placement,
                 in the merger's worker processes as the node runs it)
   warm_ms       estimate() again with unchanged maps
@@ -41,6 +42,12 @@ def worker_peaks_mb():
             except (OSError, IndexError):
                 pass
     return total
+
+
+def _hold(fn, *args):
+    """fn(*args), then hold the worker a moment so that every worker of the pool gets a task."""
+    fn(*args)
+    time.sleep(0.2)
 
 
 def score(placements, truth, n):
@@ -95,7 +102,19 @@ def main():
             m0.estimate_grids(rms[a], rms[b])
             pair.append(time.perf_counter() - t)
 
-    # full cycle: cold (new merger), warm (unchanged maps), compositing, publishing
+    # The node starts its worker pool once, at its first cycle: start it (and import the
+    # package in every worker) outside the timed cold cycle, and report that cost apart.
+    t = time.perf_counter()
+    pool = mm._pool(cfg.workers)
+    if pool is not None:
+        from multi_map_merge.pairs import compute_features
+        tiny = np.zeros((8, 8), np.uint8)
+        n = mm._POOL_SIZE
+        list(pool.map(_hold, [compute_features] * n, [cfg] * n, [tiny] * n))
+    pool_start = (time.perf_counter() - t) * 1000.0
+
+    # full cycle: cold (new merger: no feature, pair or wall cache of its own), warm (unchanged
+    # maps), compositing, publishing
     cold, warm, comp, comp_again, pub = [], [], [], [], []
     for _ in range(reps):
         m = MapMerger(cfg)
@@ -123,7 +142,7 @@ def main():
     errs = score(P, truth, len(grids))
     print(json.dumps({
         'features_ms': med(feat), 'pair_ms': med(pair), 'cold_ms': med(cold), 'warm_ms': med(warm),
-        'cold_first_ms': cold[0] * 1000.0,
+        'cold_first_ms': cold[0] * 1000.0, 'pool_start_ms': pool_start,
         'compose_ms': med(comp), 'compose_again_ms': med(comp_again), 'publish_ms': med(pub),
         'published_bytes': buf.tell(),
         'rss_mb': resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0 + worker_peaks_mb(),

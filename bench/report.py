@@ -74,9 +74,11 @@ def rows_table(rows, peer_note):
             trip(o['warm_ms'], p.get('estimate_ms'), '%.2f', '%.0f'),
             '%.1f+%.1f / %s = %s' % (o['compose_ms'], o['publish_ms'], _f(p.get('compose_ms'), '%.1f'),
                                      _f(_r(cp, p.get('compose_ms')), '%.2fx'))))
-    h = '%-16s %3s | %-24s | %-13s | %-38s' % ('input', 'N', 'peak RSS MB', 'placed (ok)', 'max error: ours | m-explore')
+    h = '%-16s %3s | %-30s | %-16s | %-38s' % ('input', 'N', 'peak RSS MB (ours: +workers)', 'placed (ok)',
+                                                'max error: ours | m-explore')
     out += ['', 'MEMORY AND CORRECTNESS  (placed: robots put in the merged frame besides the reference; '
-            'ok: within %.1f m and %.0f deg of the truth)' % (TOL_M, TOL_DEG), h, '-' * len(h)]
+            'ok: within %.1f m and %.0f deg of the truth; peak RSS: ours = process + worker processes '
+            '(process alone in brackets))' % (TOL_M, TOL_DEG), h, '-' * len(h)]
     for r in rows:
         o, p = r['ours'], r['peer']
 
@@ -88,9 +90,10 @@ def rows_table(rows, peer_note):
 
         def er(s):
             return '%s m %s deg' % (_f(s.get('max_err_m'), '%.3f'), _f(s.get('max_err_deg'), '%.2f'))
-        out.append('%-16s %3d | %-24s | %-13s | %-38s' % (
+        out.append('%-16s %3d | %-30s | %-16s | %-38s' % (
             r['name'], r['robots'],
-            '%.0f / %s = %s' % (o['rss_mb'], _f(p.get('rss_mb')), _f(_r(o['rss_mb'], p.get('rss_mb')), '%.2fx')),
+            '%.0f (%s) / %s = %s' % (o['rss_mb'], _f(o.get('rss_self_mb')), _f(p.get('rss_mb')),
+                                     _f(_r(o['rss_mb'], p.get('rss_mb')), '%.2fx')),
             '%s / %s' % (pl(o), pl(p)), '%s | %s' % (er(o), er(p) if p.get('placed') is not None
                                                       else p.get('skipped', '-'))))
     return '\n'.join(out)
@@ -136,6 +139,7 @@ def plot(rows, path):
         a.set_ylabel('ms')
 
     series(ax[2], sweep, n, 'ours', 'rss_mb', 'o-', 'ours (process + workers)')
+    series(ax[2], sweep, n, 'ours', 'rss_self_mb', 'd-', 'ours (process alone)')
     series(ax[2], sweep, n, 'peer', 'rss_mb', 'o--', 'm-explore')
     ax[2].set_xscale('log', base=2)
     ax[2].set_xlabel('robots (intel-sized maps)')
