@@ -12,7 +12,7 @@ APT_PKGS := python3-rospy python3-tf2-ros python3-nav-msgs python3-rostest pytho
   python3-roslaunch python3-rostopic python3-map-msgs python3-diagnostic-msgs python3-std-srvs \
   python3-geometry-msgs python3-sensor-msgs python3-catkin-pkg python3-setuptools \
   catkin ros-core-dev g++ python3-opencv python3-numpy python3-scipy python3-yaml \
-  python3-pytest python3-matplotlib
+  python3-pytest python3-matplotlib python3-open3d python3-tf2-msgs
 ROS_ENV := source $(SETUP) && export ROS_HOME=$(WS)/ros_home ROS_LOG_DIR=$(WS)/ros_home/log
 
 .PHONY: deps build test unit demo bench clean

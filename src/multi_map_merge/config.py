@@ -42,6 +42,7 @@ class MergeConfig:
     min_agreement: float = 0.8               # wall agreement 0..1 in the overlap
     min_overlap_cells: int = 400
     agreement_tolerance: int = 2             # cells
+    pose_graph: bool = True                  # place robots by all verified links at once (cycles averaged)
     # --- prior knowledge of where robots started (optional, like m-explore's known_init_poses) ---
     initial_poses: Dict[str, List[float]] = field(default_factory=dict)  # robot: [x, y, yaw]
     initial_pose_tolerance: List[float] = field(default_factory=lambda: [1.0, 0.35])  # m, rad

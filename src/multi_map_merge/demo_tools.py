@@ -1,17 +1,16 @@
 """The ROS-free half of `make demo` (``scripts/run_demo`` drives ROS; this module never imports rospy).
 
-    python3 -m multi_map_merge.demo_tools inputs WORLD.yaml OUT_DIR [--robots 4] [--seed 3]
     python3 -m multi_map_merge.demo_tools config BASE.yaml OUT.yaml key=value ...
-    python3 -m multi_map_merge.demo_tools report STATUS.yaml MERGED.yaml PNG robot:map.yaml ...
-                                                 [--truth truth.yaml] [--title TEXT]
+    python3 -m multi_map_merge.demo_tools report --truth NAME.truth.yaml --record DIR
+            [--single single.yaml] [--png OUT.png] [--title TEXT] [--max-distance 0.1]
 
-``inputs`` cuts overlapping pieces of a real map, each moved into a frame of its own at a known
-pose (``tb3_N.yaml`` and ``truth.yaml``: pose of every frame in tb3_0's frame). ``config`` writes
-a copy of the merger's parameter file with a few values changed. ``report`` prints every
-robot's transform, reliability and agreement as the node reported them on /diagnostics (and
-the error against the known pose, when known), and draws the inputs and the merged map side by
-side. Its exit status is 1 when a robot was not merged or is further than 0.1 m / 1 degree from
-its known pose.
+``config`` writes a copy of the merger's parameter file with a few values changed. ``report``
+scores what a replay produced (``record_replay``'s ``merged.yaml`` and ``record.yaml``) against
+the ground truth of the bag (``make_robot_bags``' truth file): the paper's Table 1 (Fitness and
+inlier RMSE of Open3D's ICP, plus coverage and wrongly occupied area) for the merged map and,
+when given, the single robot's map; every robot's transform error through the merged TF; and a
+picture: ground truth, single-robot map and merged map side by side, then the merged map with
+every robot's trajectory drawn through the merged TF. Exit status 1 when a robot was not merged.
 """
 from __future__ import annotations
 
@@ -19,7 +18,7 @@ import argparse
 import math
 import os
 import sys
-from typing import Dict, List, Optional, Sequence
+from typing import Dict, List, Optional, Sequence, Tuple
 
 import cv2
 import numpy as np
@@ -27,167 +26,189 @@ import yaml
 
 from .grid import Grid
 from .mapio import grid_to_pgm, load_map, save_map
-from .synth import cut_piece, random_poses, split_rects
-from .transforms import pose_distance, se2, xyyaw
+from .transforms import cell_to_metric, se2, xyyaw
 
-MAX_ERROR_M = 0.1
-MAX_ERROR_DEG = 1.0
-
-
-def make_inputs(world_yaml: str, out_dir: str, robots: int = 4, seed: int = 3) -> Dict[str, np.ndarray]:
-    """Cut ``robots`` overlapping pieces of the world map, each in its own frame ``tb3_N/map``;
-    write them as ``out_dir/tb3_N.yaml`` and the true pose of each frame in tb3_0's frame as
-    ``out_dir/truth.yaml`` ({robot: {x, y, yaw}}, metres and radians). Returns the poses."""
-    world = load_map(world_yaml)
-    os.makedirs(out_dir, exist_ok=True)
-    rects = split_rects(world, robots, 0.3)
-    poses = random_poses(robots, seed, 4.0)
-    pieces = [cut_piece(world, r, p, 'tb3_%d/map' % i) for i, (r, p) in enumerate(zip(rects, poses))]
-    T0inv = np.linalg.inv(pieces[0][1])
-    truth = {}
-    for i, (g, T) in enumerate(pieces):
-        save_map(g, os.path.join(out_dir, 'tb3_%d.yaml' % i))
-        truth['tb3_%d' % i] = T0inv @ T
-    with open(os.path.join(out_dir, 'truth.yaml'), 'w') as f:
-        yaml.safe_dump({k: dict(zip(('x', 'y', 'yaw'), map(float, xyyaw(T)))) for k, T in truth.items()}, f)
-    return truth
-
-
-def load_truth(path: str) -> Dict[str, np.ndarray]:
-    with open(path) as f:
-        d = yaml.safe_load(f) or {}
-    return {k: se2(v['x'], v['y'], v['yaw']) for k, v in d.items()}
+# the paper's Table 1 (four Turtlebot3s vs one, 117 m2 house)
+PAPER = {'multi': (0.9105, 0.076), 'single': (0.7024, 0.085)}
+COLOURS = [(230, 25, 75), (60, 180, 75), (0, 130, 200), (245, 130, 48), (145, 30, 180),
+           (70, 240, 240), (240, 50, 230), (128, 128, 0)]   # RGB
 
 
 def write_config(base_yaml: str, out_yaml: str, overrides: Dict[str, object]) -> None:
-    """``base_yaml`` with ``overrides`` applied (values parsed as YAML), written to ``out_yaml``."""
     with open(base_yaml) as f:
         cfg = yaml.safe_load(f) or {}
-    unknown = set(overrides) - set(cfg)
-    if unknown:
-        raise KeyError('not a merger parameter: %s' % ', '.join(sorted(unknown)))
     cfg.update(overrides)
     with open(out_yaml, 'w') as f:
-        yaml.safe_dump(cfg, f, default_flow_style=None, sort_keys=False)
+        yaml.safe_dump(cfg, f, sort_keys=False)
 
 
-def side_by_side(inputs: Sequence[Grid], names: Sequence[str], merged: Grid, path: str,
-                 height: int = 420) -> None:
-    """PNG: every input map, then the merged map, each scaled to one height, with a title."""
-    tiles = []
-    items = list(zip(inputs, names)) + [(merged, 'merged (%dx%d)' % (merged.width, merged.height))]
-    for g, title in items:
-        img = grid_to_pgm(g)
-        s = height / float(img.shape[0])
-        img = cv2.resize(img, (max(1, int(round(img.shape[1] * s))), height), interpolation=cv2.INTER_AREA)
-        img = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
-        img = cv2.copyMakeBorder(img, 36, 6, 6, 6, cv2.BORDER_CONSTANT, value=(255, 255, 255))
-        cv2.putText(img, title, (8, 26), cv2.FONT_HERSHEY_SIMPLEX, 0.7, (0, 0, 0), 2, cv2.LINE_AA)
-        tiles.append(img)
-    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
-    if not cv2.imwrite(path, np.hstack(tiles)):
-        raise OSError('could not write %s' % path)
+def save_record(rec: Dict, out_dir: str) -> bool:
+    """Write a replay's record (see ros_adapter.record_replay): merged.{yaml,pgm} and
+    record.yaml. False when no merged map was ever received."""
+    os.makedirs(out_dir, exist_ok=True)
+    doc = {'clock': rec.get('clock'), 'robots': rec['robots']}
+    with open(os.path.join(out_dir, 'record.yaml'), 'w') as f:
+        yaml.safe_dump(doc, f, sort_keys=False)
+    if rec.get('map') is None:
+        print('record_replay: no merged map was received on /map', file=sys.stderr)
+        return False
+    save_map(rec['map'], os.path.join(out_dir, 'merged.yaml'))
+    return True
 
 
-def _f(d: Dict[str, str], key: str, fmt: str) -> str:
-    try:
-        return fmt % float(d[key])
-    except (KeyError, TypeError, ValueError):
-        return '-'
+# ------------------------------------------------------------------------------ pictures
+
+def _image(grid: Grid) -> np.ndarray:
+    """RGB picture of a grid, row 0 at the top (north up)."""
+    g = grid_to_pgm(grid)
+    return cv2.cvtColor(g, cv2.COLOR_GRAY2RGB)
 
 
-def report(status: Dict, names: Sequence[str], truth: Optional[Dict[str, np.ndarray]] = None) -> bool:
-    """Print one line per robot from the collected /diagnostics values and TF lookups (see
-    ``scripts/run_demo``); True when every robot is merged (and within tolerance of the truth)."""
-    robots = status.get('robots', {})
-    print('%-6s %-6s %8s %8s %9s %7s %9s %7s %-7s %s' % (
-        'robot', 'merged', 'x [m]', 'y [m]', 'yaw [deg]', 'inlier', 'agreement', 'inliers', 'via',
-        'error vs known pose' if truth else 'TF map -> robot/map'))
-    ok = True
-    for n in names:
-        d = robots.get(n, {})
-        merged = d.get('merged') == 'true'
-        ok &= merged
-        if not merged:
-            print('%-6s %-6s  %s' % (n, 'no', d.get('message', 'no diagnostics from the merger')))
+def warp_to(grid: Grid, T_dst_src: np.ndarray, dst: Grid) -> Grid:
+    """``grid`` (frame src) resampled on ``dst``'s lattice, given the pose of src in dst's frame."""
+    from .grid import levels_to_values
+    M = np.linalg.inv(cell_to_metric(grid.resolution, grid.origin)) @ np.linalg.inv(T_dst_src) \
+        @ cell_to_metric(dst.resolution, dst.origin)         # dst cells -> src cells
+    lv = cv2.warpAffine(grid.levels(), M[:2], (dst.width, dst.height),
+                        flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP, borderValue=0)
+    return Grid(levels_to_values(lv), dst.resolution, dst.origin, dst.frame_id)
+
+
+def _to_pixels(pts_xy: np.ndarray, dst: Grid) -> np.ndarray:
+    W = np.linalg.inv(cell_to_metric(dst.resolution, dst.origin))
+    c = (W[:2, :2] @ pts_xy.T).T + W[:2, 2]
+    return np.stack([c[:, 0], dst.height - 1 - c[:, 1]], axis=1)
+
+
+def figure(truth: Grid, panels: Sequence[Tuple[str, Optional[Grid]]],
+           trajectories: Dict[str, np.ndarray], path: str, title: str = '') -> None:
+    """Ground truth and the maps (already on the truth's lattice) side by side, then the last
+    map with each trajectory (N x 2 metres in the truth's frame) drawn on it."""
+    def label(img, text):
+        out = np.full((28 + img.shape[0], img.shape[1], 3), 255, np.uint8)
+        out[28:] = img
+        cv2.putText(out, text, (4, 19), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
+        return out
+
+    imgs = [label(_image(truth), 'ground truth')]
+    for name, g in panels:
+        imgs.append(label(_image(g) if g is not None else np.full(imgs[0].shape[:2] + (3,), 200, np.uint8)[28:],
+                          name))
+    last = _image(panels[-1][1]) if panels and panels[-1][1] is not None else _image(truth)
+    for k, (robot, xy) in enumerate(sorted(trajectories.items())):
+        if len(xy) < 2:
             continue
-        yaw = _f(d, 'yaw', '%.6f')
-        ref = d.get('reference') == 'true'
-        line = '%-6s %-6s %8s %8s %9s %7s %9s %7s %-7s ' % (
-            n, 'yes', _f(d, 'x', '%.3f'), _f(d, 'y', '%.3f'),
-            '%.2f' % math.degrees(float(yaw)) if yaw != '-' else '-',
-            _f(d, 'inlier_ratio', '%.3f'), _f(d, 'agreement', '%.3f'),
-            '-' if ref else d.get('inliers', '-'), '(ref)' if ref else d.get('via', '-'))
-        tf = d.get('tf')
-        if truth is not None and n in truth:
-            if tf is None:
-                line += 'no TF'
-                ok = False
-            else:
-                dist, dyaw = pose_distance(se2(*tf), truth[n])
-                good = dist <= MAX_ERROR_M and math.degrees(dyaw) <= MAX_ERROR_DEG
-                ok &= good
-                line += '%.3f m, %.2f deg%s' % (dist, math.degrees(dyaw), '' if good else '  TOO FAR')
+        px = np.round(_to_pixels(xy, truth)).astype(np.int32)
+        cv2.polylines(last, [px.reshape(-1, 1, 2)], False, COLOURS[k % len(COLOURS)], 2, cv2.LINE_AA)
+        cv2.circle(last, tuple(int(v) for v in px[0]), 4, COLOURS[k % len(COLOURS)], -1)
+        cv2.putText(last, robot, (4, 18 + 16 * k), cv2.FONT_HERSHEY_SIMPLEX, 0.45, COLOURS[k % len(COLOURS)], 1,
+                    cv2.LINE_AA)
+    imgs.append(label(last, 'merged + trajectories (merged TF)'))
+    gap = np.full((imgs[0].shape[0], 8, 3), 255, np.uint8)
+    row = np.hstack([x for im in imgs for x in (im, gap)][:-1])
+    scale = max(1.0, 1400.0 / row.shape[1])
+    if scale > 1.0:
+        row = cv2.resize(row, None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST)
+    if title:
+        head = np.full((30, row.shape[1], 3), 255, np.uint8)
+        cv2.putText(head, title, (6, 21), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 0, 0), 1, cv2.LINE_AA)
+        row = np.vstack([head, row])
+    cv2.imwrite(path, cv2.cvtColor(row, cv2.COLOR_RGB2BGR))
+
+
+# ------------------------------------------------------------------------------ the report
+
+def report(truth_path: str, record_dir: str, single_path: Optional[str], png: Optional[str],
+           title: str = '', max_distance: float = 0.1) -> int:
+    """Print Table 1 and the transform errors; draw the picture. 0 when every robot merged."""
+    from .evaluate import load_truth, score_map, transform_errors
+    truth = load_truth(truth_path)
+    gt = load_map(truth['world_path'])
+    starts = {r: se2(*v['start']) for r, v in truth['robots'].items()}
+    ref = truth['reference']
+    with open(os.path.join(record_dir, 'record.yaml')) as f:
+        rec = yaml.safe_load(f)
+    robots = sorted(truth['robots'])
+    merged_path = os.path.join(record_dir, 'merged.yaml')
+    merged = load_map(merged_path) if os.path.exists(merged_path) else None
+    rows = []
+    panels: List[Tuple[str, Optional[Grid]]] = []
+    T_gt_merged = None
+    if single_path:
+        single = load_map(single_path)
+        s = score_map(single, gt, se2(*truth['single']['start']), max_distance)
+        rows.append(('single robot (%.0f m driven)' % truth['single']['distance_m'], s))
+        panels.append(('single robot', warp_to(single, s.T, gt)))
+    if merged is not None:
+        # the merged map's frame is the reference robot's map frame: its start in the world
+        m = score_map(merged, gt, starts[ref], max_distance)
+        T_gt_merged = m.T
+        rows.append(('multi-robot (%d robots)' % len(robots), m))
+        panels.append(('merged (%d robots)' % len(robots), warp_to(merged, m.T, gt)))
+    print()
+    print(title or 'Map quality against the ground truth')
+    print('ICP of occupied cells (Open3D point-to-point, max correspondence %.2f m), as the paper\'s '
+          'Table 1' % max_distance)
+    h = '%-30s %8s %12s %10s %12s' % ('', 'Fitness', 'inlier RMSE', 'coverage', 'wrong occ.')
+    print(h)
+    print('-' * len(h))
+    for name, s in rows:
+        print('%-30s %8.4f %10.3f m %10.3f %9.2f m2' % (name, s.fitness, s.inlier_rmse, s.coverage, s.wrong_occupied_m2))
+    print('%-30s %8.4f %10.3f m' % ('paper: multi-robot (4)', *PAPER['multi']))
+    print('%-30s %8.4f %10.3f m' % ('paper: single robot', *PAPER['single']))
+    est = {}
+    for r in robots:
+        tf = (rec.get('robots', {}).get(r) or {}).get('tf')
+        if tf is not None:
+            est[r] = se2(*tf)
+    est.setdefault(ref, np.eye(3))
+    errs = transform_errors(est, starts, ref)
+    print()
+    print('every robot\'s map frame in the merged map (TF map -> <robot>/map at the end) against the truth:')
+    ok = True
+    for r in robots:
+        d = (rec.get('robots', {}).get(r) or {}).get('diagnostics', {})
+        e = errs.get(r)
+        if r == ref:
+            print('  %-6s reference' % r)
+        elif e is None:
+            ok = False
+            print('  %-6s NOT merged: %s' % (r, d.get('message', 'no TF')))
         else:
-            line += ('x=%.3f y=%.3f yaw=%.2f deg' % (tf[0], tf[1], math.degrees(tf[2]))
-                     if tf is not None else 'no TF')
-        print(line)
-    if 'merged_after_s' in status:
-        print('every robot merged %.1f s after the merger started' % status['merged_after_s']
-              if status.get('all_merged') else
-              'NOT every robot merged within %.0f s' % status.get('timeout_s', 0))
-    return ok
+            print('  %-6s error %.3f m %.2f deg   inlier ratio %s  agreement %s  via %s' % (
+                r, e[0], e[1], d.get('inlier_ratio', '-'), d.get('agreement', '-'), d.get('chain', d.get('linked_to', '-'))))
+    if png:
+        traj = {}
+        if T_gt_merged is not None:
+            for r in robots:
+                pts = np.array([p[1:3] for p in (rec.get('robots', {}).get(r) or {}).get('trajectory', [])], float)
+                if len(pts) and r in est:
+                    T = T_gt_merged @ est[r]      # robot's map frame -> merged frame -> truth
+                    traj[r] = (T[:2, :2] @ pts.T).T + T[:2, 2]
+        figure(gt, panels, traj, png, title)
+        print('\nwrote %s' % png)
+    return 0 if ok else 1
 
 
 def _main(argv: Optional[List[str]] = None) -> int:
-    ap = argparse.ArgumentParser(prog='demo_tools', description=__doc__.split('\n\n')[0])
+    ap = argparse.ArgumentParser(prog='demo_tools')
     sub = ap.add_subparsers(dest='cmd', required=True)
-    p = sub.add_parser('inputs', help='cut robot maps with known poses out of a real map')
-    p.add_argument('world')
-    p.add_argument('out_dir')
-    p.add_argument('--robots', type=int, default=4)
-    p.add_argument('--seed', type=int, default=3)
-    p = sub.add_parser('config', help='copy the merger parameters with some values changed')
-    p.add_argument('base')
-    p.add_argument('out')
-    p.add_argument('overrides', nargs='*', help='key=value (value parsed as YAML)')
-    p = sub.add_parser('report', help='print transforms and draw the side-by-side PNG')
-    p.add_argument('status', help='YAML written by run_demo from /diagnostics and TF')
-    p.add_argument('merged', help='merged map .yaml (from save_map)')
-    p.add_argument('png')
-    p.add_argument('maps', nargs='+', help='robot:map.yaml pairs, as given to publish_maps')
-    p.add_argument('--truth', help='truth.yaml from `inputs`')
-    p.add_argument('--title', default='')
+    c = sub.add_parser('config')
+    c.add_argument('base')
+    c.add_argument('out')
+    c.add_argument('overrides', nargs='*', help='key=value (value parsed as YAML)')
+    r = sub.add_parser('report')
+    r.add_argument('--truth', required=True)
+    r.add_argument('--record', required=True)
+    r.add_argument('--single')
+    r.add_argument('--png')
+    r.add_argument('--title', default='')
+    r.add_argument('--max-distance', type=float, default=0.1)
     a = ap.parse_args(argv)
-
-    if a.cmd == 'inputs':
-        make_inputs(a.world, a.out_dir, a.robots, a.seed)
-        return 0
     if a.cmd == 'config':
-        kv = {}
-        for item in a.overrides:
-            k, sep, v = item.partition('=')
-            if not sep:
-                ap.error('%r is not key=value' % item)
-            kv[k] = yaml.safe_load(v)
-        write_config(a.base, a.out, kv)
+        write_config(a.base, a.out, {k: yaml.safe_load(v) for k, v in (o.split('=', 1) for o in a.overrides)})
         return 0
-    names, grids = [], []
-    for item in a.maps:
-        robot, _, path = item.partition(':')
-        names.append(robot)
-        grids.append(load_map(path))
-    with open(a.status) as f:
-        status = yaml.safe_load(f) or {}
-    if a.title:
-        print('\n== %s' % a.title)
-    ok = report(status, names, load_truth(a.truth) if a.truth else None)
-    if os.path.exists(a.merged):
-        side_by_side(grids, names, load_map(a.merged), a.png)
-    else:
-        print('no merged map saved (%s)' % a.merged)
-        ok = False
-    return 0 if ok else 1
+    return report(a.truth, a.record, a.single, a.png, a.title, a.max_distance)
 
 
 if __name__ == '__main__':

@@ -30,8 +30,14 @@ from .config import MergeConfig
 from .features import Features
 from .grid import Grid, rescale
 from .merge import Lattice, Patch, composite, lattice_for, warp_patch
+from . import posegraph
 from .pairs import PairInput, compute_features, estimate_pair
 from .transforms import image_to_pose, pose_to_image, se2, xyyaw
+
+
+# a pose graph whose result disagrees with one of its links by more than this (metres,
+# radians) is not used: the chain of most reliable links places the robots instead
+GRAPH_GATE = (0.3, math.radians(3.0))
 
 
 @dataclass
@@ -115,6 +121,7 @@ class MapMerger:
         self._errors: Dict[str, str] = {}
         self._restored: Dict[Tuple[str, str], Edge] = {}
         self._merged = None       # (patch identities, merged grid) of the last compose
+        self._graph_key = None    # the links the last pose-graph placement was made of
         self._uid = '%d-%d' % (os.getpid(), next(_MERGERS))   # names its maps in worker caches
         self.state_version = 0    # bumped whenever links or placements change (for persistence)
 
@@ -129,6 +136,14 @@ class MapMerger:
         if not self._reference and self._maps:
             self._reference = sorted(self._maps)[0]
         return self._reference
+
+    def propose_reference(self, name: str) -> str:
+        """Make ``name`` the reference unless one is set already (``reference_robot``, or a
+        previous choice: the merged frame never changes once chosen). Returns the reference."""
+        with self._lock:
+            if not self._reference:
+                self._reference = name
+            return self._reference
 
     def update_map(self, name: str, grid: Grid) -> Optional[str]:
         """Take a robot's new grid (already validated, see :func:`grid.make_grid`).
@@ -415,6 +430,22 @@ class MapMerger:
                                     best[u].path + (v,), time.time())
                 if v not in frontier:
                     frontier.append(v)
+        graph_key = None
+        if c.pose_graph:
+            # every verified link at once: a chain adds up its links' errors, the graph
+            # averages them over every cycle (kept only if every link agrees with it)
+            links = [(e.parent, e.child, e.T, float(min(e.inliers, 50))) for e in edges.values()
+                     if e.parent in best and e.child in best]
+            if len(links) >= len(best):
+                opt = posegraph.optimise({n: p.T for n, p in best.items()}, links, ref)
+                worst = posegraph.worst_residual(opt, links)
+                if worst is not None and worst[0] <= GRAPH_GATE[0] and worst[1] <= GRAPH_GATE[1]:
+                    graph_key = tuple(sorted((a, b, edges[(a, b)].stamp) for a, b, _, _ in links))
+                    for n in best:
+                        best[n].T = opt[n]
+        with self._lock:
+            regraphed = graph_key is not None and graph_key != self._graph_key
+            self._graph_key = graph_key
         priors = c.initial_poses
         if c.trust_initial_poses and ref in priors:
             for n in maps:
@@ -426,7 +457,8 @@ class MapMerger:
             prev = old.get(n)
             still_linked = prev is not None and (prev.via == 'initial_pose' or all(
                 (p, q) in edges or (q, p) in edges for p, q in zip(prev.path, prev.path[1:])))
-            if prev is not None and still_linked and pl.reliability <= prev.reliability + c.replace_margin:
+            if (prev is not None and still_linked and pl.reliability <= prev.reliability + c.replace_margin
+                    and not (regraphed and pl.via != 'initial_pose')):
                 new[n] = prev
                 continue
             new[n] = pl

@@ -131,6 +131,8 @@ class MergeNode:
                 rospy.logerr('multi_map_merge: %s (starting without saved transforms)', e)
             self._saved_version = self.merger.state_version
         self._gone: Dict[str, bool] = {}
+        if config.robots:
+            self.merger.propose_reference(sorted(r.strip('/') for r in config.robots)[0])
         for r in config.robots:
             self._subscribe(r.strip('/'))
         self._discover(None)
@@ -158,12 +160,18 @@ class MergeNode:
         except Exception as e:  # master gone for a moment: try again next time
             rospy.logwarn_throttle(30, 'multi_map_merge: topic discovery failed: %s' % e)
             return
+        found = []
         for topic, ttype in topics:
             parts = topic.strip('/').split('/')
             if len(parts) != 2 or parts[1] != self.cfg.map_topic or ttype != 'nav_msgs/OccupancyGrid':
                 continue
             if fnmatch.fnmatch(parts[0], self.cfg.robot_namespace_pattern):
-                self._subscribe(parts[0])
+                found.append(parts[0])
+        if found:
+            # robot 1 = first by name among the robots seen at discovery, whichever map comes first
+            self.merger.propose_reference(sorted(found)[0])
+        for robot in found:
+            self._subscribe(robot)
 
     def _watch(self) -> None:
         """Log a robot whose map publisher went away, and its return. Its last map and
@@ -282,6 +290,10 @@ class MergeNode:
     def _publish_tf(self, _event) -> None:
         frames = self.merger.frames()
         now = rospy.Time.now()
+        # On a bag's clock two timer ticks can share a stamp: tf2 would warn of repeated data
+        if now == getattr(self, '_last_tf_stamp', None):
+            return
+        self._last_tf_stamp = now
         out = []
         for robot, pl in self.merger.placements().items():
             child = frames.get(robot)
@@ -487,3 +499,198 @@ def lookup_transforms(parent: str, children: List[str], timeout: float) -> Dict[
                     tf2_ros.ExtrapolationException):
                 time.sleep(0.1)
     return out
+
+
+# ---------------------------------------------------------------- bags
+BAG_EPOCH = 1_600_000_000.0   # bag time of a simulated run's t = 0 (fixed: bags are reproducible)
+
+
+def write_robot_bag(path: str, runs, clock_rate: float = 10.0) -> Dict[str, int]:
+    """Write robots' runs (:class:`multi_map_merge.simulate.RobotRun`) to a rosbag as real
+    Turtlebot3s running gmapping record them, each robot under ``/<name>/``:
+    ``/<name>/scan`` (LaserScan, frame ``<name>/base_scan``), ``/<name>/odom`` (Odometry),
+    ``/<name>/map`` (OccupancyGrid, frame ``<name>/map``), ``/tf`` (``<name>/odom ->
+    <name>/base_footprint`` at the odometry rate, ``<name>/base_footprint -> <name>/base_scan``
+    with every scan, gmapping's ``<name>/map -> <name>/odom``), and ``/clock``.
+    Returns the number of messages per topic. lz4-compressed."""
+    import rosbag
+    from nav_msgs.msg import Odometry
+    from rosgraph_msgs.msg import Clock
+    from sensor_msgs.msg import LaserScan
+    from tf2_msgs.msg import TFMessage
+
+    from .simulate import compose, relative
+    NumpyScan = numpy_msg(LaserScan)
+    counts: Dict[str, int] = {}
+    records = []   # (time s, order, topic, msg): sorted before writing
+
+    def add(t, topic, msg, order=0):
+        records.append((t, order, topic, msg))
+        counts[topic] = counts.get(topic, 0) + 1
+
+    def stamp(t):
+        return rospy.Time.from_sec(BAG_EPOCH + t)
+
+    end = 0.0
+    for run in runs:
+        n = run.name
+        f_map, f_odom, f_base, f_scan = n + '/map', n + '/odom', n + '/base_footprint', n + '/base_scan'
+        dt = run.t[1] - run.t[0] if len(run.t) > 1 else 0.05
+        v = np.hypot(*np.diff(run.odom[:, :2], axis=0).T) / dt
+        w = np.diff(np.unwrap(run.odom[:, 2])) / dt
+        map_odom = compose(run.slam, relative(run.odom, np.zeros_like(run.odom)))   # slam ⊕ odom^-1
+        scan_at = set(int(s) for s in run.scans.steps)
+        for i, t in enumerate(run.t):
+            st = stamp(t)
+            od = Odometry()
+            od.header.stamp, od.header.frame_id, od.child_frame_id = st, f_odom, f_base
+            x, y, yaw = run.odom[i]
+            od.pose.pose.position.x, od.pose.pose.position.y = x, y
+            od.pose.pose.orientation.z, od.pose.pose.orientation.w = math.sin(yaw / 2), math.cos(yaw / 2)
+            if i > 0:
+                od.twist.twist.linear.x, od.twist.twist.angular.z = v[i - 1], w[i - 1]
+            add(t, '/%s/odom' % n, od)
+            tfs = [transform_msg(se2(*run.odom[i]), f_odom, f_base, st)]
+            if i in scan_at:
+                o = run.scans.offset
+                tr = transform_msg(se2(o[0], o[1], 0.0), f_base, f_scan, st)
+                tr.transform.translation.z = o[2]
+                tfs.append(tr)
+            add(t, '/tf', TFMessage(tfs))
+            add(t, '/tf', TFMessage([transform_msg(se2(*map_odom[i]), f_map, f_odom, st)]), 1)
+        sc = run.scans
+        for k, step in enumerate(sc.steps):
+            t = float(run.t[step])
+            m = NumpyScan()
+            m.header.stamp, m.header.frame_id = stamp(t), f_scan
+            m.angle_min = sc.angle_min
+            m.angle_increment = sc.angle_increment
+            m.angle_max = sc.angle_min + sc.angle_increment * (sc.ranges.shape[1] - 1)
+            m.scan_time = 1.0 / 5.0
+            m.time_increment = m.scan_time / sc.ranges.shape[1]
+            m.range_min, m.range_max = sc.range_min, sc.range_max
+            m.ranges = np.ascontiguousarray(sc.ranges[k], np.float32)
+            m.intensities = np.zeros(0, np.float32)
+            add(t, '/%s/scan' % n, m, 2)
+        for t, grid in run.maps:
+            add(t, '/%s/map' % n, grid_to_msg(grid, stamp(t), f_map), 3)
+        end = max(end, float(run.t[-1]))
+    for t in np.arange(0.0, end + 1e-9, 1.0 / clock_rate):
+        c = Clock()
+        c.clock = stamp(float(t))
+        add(float(t), '/clock', c, -1)
+    records.sort(key=lambda r: (r[0], r[1]))
+    with rosbag.Bag(path, 'w', compression='lz4') as bag:
+        for t, _, topic, msg in records:
+            bag.write(topic, msg, stamp(t))
+    return counts
+
+
+def read_bag_maps(path: str, max_cells: int = 100_000_000) -> Dict[str, List[Grid]]:
+    """Every OccupancyGrid in a bag, per topic, in order (numpy all the way)."""
+    import rosbag
+    out: Dict[str, List[Grid]] = {}
+    with rosbag.Bag(path) as bag:
+        topics = [t for t, i in bag.get_type_and_topic_info().topics.items() if i.msg_type == 'nav_msgs/OccupancyGrid']
+        for topic, msg, _ in bag.read_messages(topics=topics):
+            w, h = int(msg.info.width), int(msg.info.height)
+            data = np.frombuffer(msg.data, np.int8) if isinstance(msg.data, bytes) else np.asarray(msg.data, np.int8)
+            o = msg.info.origin
+            out.setdefault(topic, []).append(make_grid(
+                data, w, h, float(msg.info.resolution), (o.position.x, o.position.y, quaternion_yaw(o.orientation)),
+                msg.header.frame_id, msg.header.stamp.to_sec(), max_cells))
+    return out
+
+
+def record_replay(robots: Sequence[str], period: float = 0.5, idle: float = 4.0,
+                  timeout: float = 3600.0, merged_frame: str = 'map', start_timeout: float = 60.0) -> Dict:
+    """Watch a replay through the merger until the bag ends (``/clock`` still for ``idle``
+    wall seconds after it moved, or no ``/clock`` at all within ``start_timeout``, or
+    ``timeout``, or shutdown). Every ``period`` wall seconds it looks up, by tf2, each robot's
+    ``base_footprint`` in its ``<robot>/map`` frame (its trajectory) and that frame in
+    ``merged_frame`` (the merged TF). Returns {'map': last merged Grid or None, 'robots': {name:
+    {'trajectory': [[t, x, y, yaw] in <robot>/map, ...], 'tf': [x, y, yaw] of <robot>/map in the
+    merged frame, or None, 'diagnostics': {...}}}, 'clock': last /clock seconds}."""
+    from rosgraph_msgs.msg import Clock
+    state: Dict = {'map': None, 'clock': None, 'clock_wall': None, 'diag': {}}
+
+    def on_map(msg):
+        try:
+            state['map'] = grid_from_msg(msg, 10 ** 9)
+        except (GridError, ValueError):
+            pass
+
+    def on_clock(msg):
+        c = msg.clock.to_sec()
+        if state['clock'] is None or c > state['clock']:
+            state['clock'], state['clock_wall'] = c, time.time()
+
+    def on_diag(msg):
+        for s in msg.status:
+            if s.hardware_id:
+                d = {kv.key: kv.value for kv in s.values}
+                d['message'] = s.message
+                state['diag'][s.hardware_id] = d
+
+    subs = [rospy.Subscriber('/map', NumpyGrid, on_map, queue_size=1, buff_size=2 ** 26),
+            rospy.Subscriber('/clock', Clock, on_clock, queue_size=10),
+            rospy.Subscriber('/diagnostics', DiagnosticArray, on_diag, queue_size=10)]
+    buf = tf2_ros.Buffer(cache_time=rospy.Duration(3600.0))
+    tf2_ros.TransformListener(buf)
+    traj: Dict[str, List] = {r: [] for r in robots}
+    last_tf: Dict[str, Optional[List[float]]] = {r: None for r in robots}
+    end = time.time() + timeout
+    while not rospy.is_shutdown() and time.time() < end:
+        time.sleep(period)              # wall time: the sim clock stops when the bag ends
+        if state['clock_wall'] is not None and time.time() - state['clock_wall'] > idle:
+            break
+        if state['clock_wall'] is None and time.time() > end - timeout + start_timeout:
+            rospy.logerr('record_replay: no /clock within %.0f s: is the bag playing?', start_timeout)
+            break
+        for r in robots:
+            # the trajectory in the robot's own map frame (there from its first scan on), and
+            # where the merger puts that frame: together, the trajectory through the merged TF
+            for parent, child, store in (('%s/map' % r, '%s/base_footprint' % r, 'traj'),
+                                         (merged_frame, '%s/map' % r, 'tf')):
+                try:
+                    t = buf.lookup_transform(parent, child, rospy.Time(0))
+                except (tf2_ros.LookupException, tf2_ros.ConnectivityException,
+                        tf2_ros.ExtrapolationException):
+                    continue
+                tr = t.transform
+                p = [float(tr.translation.x), float(tr.translation.y), float(quaternion_yaw(tr.rotation))]
+                if store == 'tf':
+                    last_tf[r] = p
+                elif not traj[r] or traj[r][-1][0] != t.header.stamp.to_sec():
+                    traj[r].append([t.header.stamp.to_sec()] + p)
+    for s in subs:
+        s.unregister()
+    return {'map': state['map'], 'clock': state['clock'],
+            'robots': {r: {'trajectory': traj[r], 'tf': last_tf[r], 'diagnostics': state['diag'].get(r, {})}
+                       for r in robots}}
+
+
+def run_tf_relay(src: str = '/tf_bag', dst: str = '/tf', drop_parent: str = '*/map',
+                 drop_child: str = '*/odom') -> None:
+    """Republish ``src`` (tf2_msgs/TFMessage) on ``dst`` without the transforms whose parent
+    and child match ``drop_parent`` and ``drop_child`` (fnmatch patterns): a recorded bag's own
+    SLAM ``map -> odom`` must not fight the live gmapping that replaces it."""
+    from tf2_msgs.msg import TFMessage
+    pub = rospy.Publisher(dst, TFMessage, queue_size=100)
+    dropped = set()
+
+    def on_tf(msg):
+        keep = []
+        for t in msg.transforms:
+            p, c = t.header.frame_id.lstrip('/'), t.child_frame_id.lstrip('/')
+            if fnmatch.fnmatch(p, drop_parent) and fnmatch.fnmatch(c, drop_child):
+                if (p, c) not in dropped:
+                    dropped.add((p, c))
+                    rospy.loginfo('tf_relay: dropping the recorded %s -> %s (live SLAM publishes it)', p, c)
+                continue
+            keep.append(t)
+        if keep:
+            pub.publish(TFMessage(keep))
+
+    rospy.Subscriber(src, TFMessage, on_tf, queue_size=100)
+    rospy.spin()
