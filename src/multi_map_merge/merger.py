@@ -32,12 +32,14 @@ from .grid import Grid, rescale
 from .merge import Lattice, Patch, composite, lattice_for, warp_patch
 from . import posegraph
 from .pairs import PairInput, compute_features, estimate_pair
-from .transforms import image_to_pose, pose_to_image, se2, xyyaw
+from .transforms import image_to_pose, pose_distance, pose_to_image, se2, xyyaw
 
 
 # a pose graph whose result disagrees with one of its links by more than this (metres,
 # radians) is not used: the chain of most reliable links places the robots instead
 GRAPH_GATE = (0.3, math.radians(3.0))
+# a link re-estimated within this of the kept one (metres, radians) is the same link refined
+SAME_LINK = (0.3, math.radians(3.0))
 
 
 @dataclass
@@ -70,6 +72,7 @@ class Edge:
     inliers: int
     matches: int
     stamp: float
+    overlap: int = 0      # cells known in both grids when it was estimated
 
     def towards(self, parent: str) -> np.ndarray:
         """Pose of the other robot's frame in ``parent``'s frame."""
@@ -388,7 +391,14 @@ class MapMerger:
             old = self._edges.get(key)
             if old is None or r.reliability > old.reliability + c.replace_margin:
                 self._edges[key] = Edge(pa.name, ch.name, T, r.reliability, r.agreement,
-                                        r.inliers, r.matches, time.time())
+                                        r.inliers, r.matches, time.time(), r.overlap)
+                self.state_version += 1
+            elif r.overlap > old.overlap and _same_link(T, old.T):
+                # The kept link, found again on grown maps: the same solution, now refined on
+                # more overlap. Take its pose (a small correction, not a jump); keep the best
+                # reliability seen. Early links on small maps are otherwise stuck a degree off.
+                self._edges[key] = Edge(pa.name, ch.name, T, old.reliability, r.agreement,
+                                        max(old.inliers, r.inliers), r.matches, time.time(), r.overlap)
                 self.state_version += 1
 
     def _input(self, m: RobotMap) -> PairInput:
@@ -485,6 +495,12 @@ class MapMerger:
                        m.grid.origin, T, lattice, c.max_cells)
         self._patches[m.name] = (key, p)
         return p
+
+
+def _same_link(T1: np.ndarray, T2: np.ndarray) -> bool:
+    """Two estimates of one link that differ by a refinement, not by a different solution."""
+    d, a = pose_distance(T1, T2)
+    return d <= SAME_LINK[0] and a <= SAME_LINK[1]
 
 
 def _restarted(old: Grid, new: Grid) -> bool:

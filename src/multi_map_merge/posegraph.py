@@ -5,8 +5,7 @@ it); with more links than robots (every pair is matched) the placements can be a
 every cycle instead. Each link ``a -> b`` measures ``Z_ab`` (pose of b's frame in a's frame);
 we find the poses ``T_k`` (of each frame in the merged frame, the reference fixed at the
 identity) that minimise ``sum_w || log(Z_ab^-1 T_a^-1 T_b) ||^2`` (x, y in metres scaled by
-``sigma_xy``, yaw in radians by ``sigma_yaw``) by Gauss-Newton. N is a few robots to a few
-dozen, so numerical Jacobians do.
+``sigma_xy``, yaw in radians by ``sigma_yaw``) by Gauss-Newton with analytic Jacobians (32 robots, 496 links: a few ms).
 """
 from __future__ import annotations
 
@@ -25,46 +24,68 @@ def _residual(Ta: np.ndarray, Tb: np.ndarray, Z: np.ndarray) -> np.ndarray:
     return np.array([x, y, yaw])
 
 
+def _wrap(a):
+    return (a + np.pi) % (2 * np.pi) - np.pi
+
+
 def optimise(poses: Dict[str, np.ndarray], links: List[Link], fixed: str,
              sigma_xy: float = 0.05, sigma_yaw: float = math.radians(0.5),
              iterations: int = 20) -> Dict[str, np.ndarray]:
     """Poses (3x3, merged frame) of every frame in ``poses`` (the initial guesses) adjusted
     to all ``links`` between them; ``fixed`` keeps its pose. Links to unknown frames are
-    ignored."""
+    ignored. Gauss-Newton with the analytic Jacobians of the error
+    ``e_xy = Rz^T (Ra^T (tb - ta) - tz)``, ``e_yaw = yaw_b - yaw_a - yaw_z``, all links at once."""
     names = [n for n in sorted(poses) if n != fixed]
     links = [lk for lk in links if lk[0] in poses and lk[1] in poses and lk[0] != lk[1]]
     if not names or len(links) < len(names) + 1:     # a tree: nothing to average
         return dict(poses)
-    idx = {n: i for i, n in enumerate(names)}
-    x = np.array([xyyaw(poses[n]) for n in names], float).ravel()
-    scale = np.array([1 / sigma_xy, 1 / sigma_xy, 1 / sigma_yaw])
-
-    def pose_of(v, n):
-        if n == fixed:
-            return poses[fixed]
-        i = idx[n]
-        return se2(v[3 * i], v[3 * i + 1], v[3 * i + 2])
-
-    def residuals(v):
-        return np.concatenate([math.sqrt(w) * scale * _residual(pose_of(v, a), pose_of(v, b), Z)
-                               for a, b, Z, w in links])
-
-    eps = 1e-6
+    order = [fixed] + names
+    idx = {n: i for i, n in enumerate(order)}          # column block i-1; the fixed one has none
+    P = np.array([xyyaw(poses[n]) for n in order], float)
+    ia = np.array([idx[a] for a, _, _, _ in links])
+    ib = np.array([idx[b] for _, b, _, _ in links])
+    Zp = np.array([xyyaw(Z) for _, _, Z, _ in links], float)
+    w = np.sqrt(np.array([lk[3] for lk in links], float))
+    cz, sz = np.cos(Zp[:, 2]), np.sin(Zp[:, 2])
+    E, N = len(links), len(names)
     for _ in range(iterations):
-        r = residuals(x)
-        J = np.empty((r.size, x.size))
-        for j in range(x.size):
-            d = np.zeros_like(x)
-            d[j] = eps
-            J[:, j] = (residuals(x + d) - r) / eps
-        H = J.T @ J + 1e-9 * np.eye(x.size)
-        dx = -np.linalg.solve(H, J.T @ r)
-        x = x + dx
-        if np.max(np.abs(dx)) < 1e-7:
+        ta, tb = P[ia, :2], P[ib, :2]
+        ca, sa = np.cos(P[ia, 2]), np.sin(P[ia, 2])
+        dx, dy = tb[:, 0] - ta[:, 0], tb[:, 1] - ta[:, 1]
+        lx, ly = ca * dx + sa * dy, -sa * dx + ca * dy            # Ra^T (tb - ta)
+        ux, uy = lx - Zp[:, 0], ly - Zp[:, 1]
+        ex, ey = cz * ux + sz * uy, -sz * ux + cz * uy            # Rz^T (...)
+        eth = _wrap(P[ib, 2] - P[ia, 2] - Zp[:, 2])
+        r = np.stack([ex / sigma_xy, ey / sigma_xy, eth / sigma_yaw], 1) * w[:, None]
+        # d(Ra^T d)/d(ta) = -Ra^T, /d(tb) = Ra^T, /d(yaw_a) = [[-sa, ca], [-ca, -sa]] d
+        Ra_T = np.stack([np.stack([ca, sa], 1), np.stack([-sa, ca], 1)], 1)     # (E, 2, 2)
+        Rz_T = np.stack([np.stack([cz, sz], 1), np.stack([-sz, cz], 1)], 1)
+        M = np.einsum('eij,ejk->eik', Rz_T, Ra_T)                              # Rz^T Ra^T
+        dth = np.stack([-sa * dx + ca * dy, -ca * dx - sa * dy], 1)           # dRa^T/dyaw d
+        dth = np.einsum('eij,ej->ei', Rz_T, dth)
+        J = np.zeros((E, 3, 3 * N))
+        scale = np.array([1 / sigma_xy, 1 / sigma_xy, 1 / sigma_yaw])[:, None] * 1.0
+        for e_idx, (i_a, i_b) in enumerate(zip(ia, ib)):
+            if i_a > 0:
+                c = 3 * (i_a - 1)
+                J[e_idx, :2, c:c + 2] = -M[e_idx]
+                J[e_idx, :2, c + 2] = dth[e_idx]
+                J[e_idx, 2, c + 2] = -1.0
+            if i_b > 0:
+                c = 3 * (i_b - 1)
+                J[e_idx, :2, c:c + 2] = M[e_idx]
+                J[e_idx, 2, c + 2] = 1.0
+        J = (J * scale[None] * w[:, None, None]).reshape(3 * E, 3 * N)
+        r = r.reshape(-1)
+        H = J.T @ J + 1e-9 * np.eye(3 * N)
+        dxv = -np.linalg.solve(H, J.T @ r)
+        P[1:] += dxv.reshape(N, 3)
+        P[1:, 2] = _wrap(P[1:, 2])
+        if np.max(np.abs(dxv)) < 1e-8:
             break
     out = dict(poses)
     for n in names:
-        out[n] = pose_of(x, n)
+        out[n] = se2(*P[idx[n]])
     return out
 
 
