@@ -131,6 +131,7 @@ class MergeNode:
                 rospy.logerr('multi_map_merge: %s (starting without saved transforms)', e)
             self._saved_version = self.merger.state_version
         self._gone: Dict[str, bool] = {}
+        self._frame_warned: Dict[str, str] = {}
         if config.robots:
             self.merger.propose_reference(sorted(r.strip('/') for r in config.robots)[0])
         for r in config.robots:
@@ -206,8 +207,16 @@ class MergeNode:
         self.merger.report_error(robot, reason)
 
     def _accept(self, robot: str, grid: Grid) -> None:
-        if not grid.frame_id:
-            grid.frame_id = '%s/map' % robot
+        frame = grid.frame_id.lstrip('/')
+        if not frame or frame in (self.cfg.merged_map_frame.lstrip('/'), 'map'):
+            # A robot's map frame must be its own: a bag recorded by a lone robot says "map",
+            # which is the merged frame here. Its TF child becomes <robot>/map.
+            own = '%s/map' % robot
+            if frame and self._frame_warned.get(robot) != frame:
+                rospy.logwarn('multi_map_merge: map of %s is in frame "%s", not one of its own: '
+                              'publishing its TF as %s', robot, grid.frame_id, own)
+                self._frame_warned[robot] = frame
+            grid.frame_id = own
         if robot in self._bad:
             rospy.loginfo('multi_map_merge: map of %s is valid again', robot)
             del self._bad[robot]

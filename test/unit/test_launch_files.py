@@ -186,6 +186,35 @@ def test_bag_replay_gmapping(count):
     check_executables(cfg)
 
 
+def test_bag_replay_gmapping_moves_the_recorded_slam_aside():
+    cfg = load('bag_replay.launch', 'bag:=/tmp/x.bag', 'slam:=gmapping', 'rviz:=false')
+    (play,) = nodes(cfg, 'play')
+    remaps = dict(play.remap_args)
+    assert remaps['/tf'] == '/tf_bag'                   # tf_relay passes it on without map -> odom
+    assert all(remaps['/tb3_%d/map' % i] == '/tb3_%d/map_recorded' % i for i in range(4))
+    assert len(nodes(cfg, 'tf_relay')) == 1
+    cfg = load('bag_replay.launch', 'bag:=/tmp/x.bag', 'slam:=recorded', 'rviz:=false')
+    assert dict(nodes(cfg, 'play')[0].remap_args) == {} and nodes(cfg, 'tf_relay') == []
+
+
+@pytest.mark.parametrize('bags', [['/b/a.bag'], ['/b/a.bag', '/b/b.bag', '/b/c.bag'],
+                                  ['/b/a.bag', '/b/b.bag', '/b/c.bag', '/b/d.bag']])
+def test_replay_robot_bags(bags):
+    cfg = load('replay_robot_bags.launch', 'rate:=4', 'rviz:=false',
+               *['bag_%d:=%s' % (i, b) for i, b in enumerate(bags)])
+    plays = sorted(nodes(cfg, 'play'), key=lambda n: n.name)
+    assert [n.name for n in plays] == ['play_tb3_%d' % i for i in range(len(bags))]
+    for i, (n, b) in enumerate(zip(plays, bags)):
+        argv = shlex.split(n.args)
+        assert argv[-1] == b and argv[argv.index('-r') + 1] == '4' and '--clock' not in argv
+        remaps = dict(n.remap_args)
+        assert remaps['/map'] == '/tb3_%d/map' % i and remaps['/tf'] == '/tb3_%d/tf_recorded' % i
+    assert param(cfg, '/use_sim_time') is False
+    check_map_merge(cfg)
+    check_rviz(cfg, False)
+    check_executables(cfg)
+
+
 def test_bag_replay_defaults():
     cfg = load('bag_replay.launch', 'bag:=/tmp/x.bag')
     assert nodes(cfg, 'slam_gmapping') == []      # slam defaults to recorded
@@ -209,6 +238,7 @@ def test_missing_packages_tolerated_only_for_gmapping_and_rviz():
 # entry here is loaded with none.
 REQUIRED_ARGS = {
     'bag_replay.launch': ['bag:=/tmp/x.bag'],
+    'replay_robot_bags.launch': ['bag_0:=/tmp/x.bag'],
     GMAPPING: ['ns:=tb3_0'],
 }
 ALL_LAUNCH = sorted(os.path.relpath(p, LAUNCH)
