@@ -35,7 +35,7 @@ class TestBagReplay(unittest.TestCase):
         self.assertTrue(os.path.getsize(bag) > 1_000_000)
         init_node('test_bag_replay')
         launch = subprocess.Popen(['roslaunch', 'multi_map_merge', 'bag_replay.launch', 'bag:=' + bag,
-                                   'slam:=recorded', 'rviz:=false', 'rate:=5', 'output:=log'],
+                                   'slam:=recorded', 'rviz:=false', 'rate:=4', 'output:=log'],
                                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
         try:
             rec = record_replay(ROBOTS, period=0.5, idle=4.0, timeout=200.0)
@@ -63,12 +63,11 @@ class TestBagReplay(unittest.TestCase):
         s = score_map(rec['map'], load_map(truth['world_path']), starts['tb3_0'])
         print('bag replay: Fitness %.4f, inlier RMSE %.3f m, transform errors %s' % (
             s.fitness, s.inlier_rmse, ', '.join('%s %.3f m %.2f deg' % (k, *e) for k, e in sorted(errors.items()))))
-        # each robot's SLAM map drifts up to about a degree from its start pose: the merge
-        # aligns the drifted maps, so the error against the start poses is of that order
+        # each robot's SLAM map drifts a little from its start pose (measured: 0.4-0.7 deg here)
         for name, (d, a) in errors.items():
-            self.assertLess(d, 0.20, '%s: %.3f m from the truth' % (name, d))
-            self.assertLess(a, 2.0, '%s: %.2f deg from the truth' % (name, a))
-        self.assertGreater(s.fitness, 0.93)
+            self.assertLess(d, 0.10, '%s: %.3f m from the truth' % (name, d))
+            self.assertLess(a, 1.5, '%s: %.2f deg from the truth' % (name, a))
+        self.assertGreater(s.fitness, 0.95)
         self.assertLess(s.inlier_rmse, 0.06)
         # a trajectory through the merged TF ends where that robot truly ended (within 0.3 m)
         end = rec['robots']['tb3_1']['trajectory'][-1]

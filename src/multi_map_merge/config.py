@@ -43,6 +43,7 @@ class MergeConfig:
     min_overlap_cells: int = 400
     agreement_tolerance: int = 2             # cells
     pose_graph: bool = True                  # place robots by all verified links at once (cycles averaged)
+    ambiguity_margin: float = 0.1            # a 2nd placement verifying within this agreement: unmerged; 0 = off
     # --- prior knowledge of where robots started (optional, like m-explore's known_init_poses) ---
     initial_poses: Dict[str, List[float]] = field(default_factory=dict)  # robot: [x, y, yaw]
     initial_pose_tolerance: List[float] = field(default_factory=lambda: [1.0, 0.35])  # m, rad

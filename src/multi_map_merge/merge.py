@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 
 from .grid import Grid, known_bbox, levels_to_values
-from .transforms import cell_to_metric, apply
+from .transforms import apply, cell_to_metric, inverse
 
 
 @dataclass
@@ -72,7 +72,7 @@ def warp_patch(levels: np.ndarray, resolution: float, origin, T_merged_k: np.nda
     if w <= 0 or h <= 0 or w * h > max_cells:
         return None
     W_patch = cell_to_metric(res, (lattice.x0 + i0 * res, lattice.y0 + j0 * res, 0.0))
-    M = np.linalg.inv(W_k) @ np.linalg.inv(T_merged_k) @ W_patch   # patch cells -> cells of k
+    M = inverse(W_k) @ inverse(T_merged_k) @ W_patch   # patch cells -> cells of k
     sub = np.ascontiguousarray(levels[r0:r1, c0:c1])
     M = np.array([[1, 0, -c0], [0, 1, -r0], [0, 0, 1.0]]) @ M
     out = cv2.warpAffine(sub, M[:2], (w, h), flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP,

@@ -32,7 +32,7 @@ from .grid import Grid, rescale
 from .merge import Lattice, Patch, composite, lattice_for, warp_patch
 from . import posegraph
 from .pairs import PairInput, compute_features, estimate_pair
-from .transforms import image_to_pose, pose_distance, pose_to_image, se2, xyyaw
+from .transforms import image_to_pose, inverse, pose_distance, pose_to_image, se2, xyyaw
 
 
 # a pose graph whose result disagrees with one of its links by more than this (metres,
@@ -76,7 +76,7 @@ class Edge:
 
     def towards(self, parent: str) -> np.ndarray:
         """Pose of the other robot's frame in ``parent``'s frame."""
-        return self.T if parent == self.parent else np.linalg.inv(self.T)
+        return self.T if parent == self.parent else inverse(self.T)
 
 
 @dataclass
@@ -460,7 +460,7 @@ class MapMerger:
         if c.trust_initial_poses and ref in priors:
             for n in maps:
                 if n not in best and n in priors:
-                    T = np.linalg.inv(se2(*priors[ref])) @ se2(*priors[n])
+                    T = inverse(se2(*priors[ref])) @ se2(*priors[n])
                     best[n] = Placement(T, 0.0, 0.0, 0, 'initial_pose', (ref, n), time.time())
         new = {}
         for n, pl in best.items():

@@ -16,7 +16,7 @@ from . import estimate as est
 from .config import MergeConfig
 from .features import FeatureExtractor, Features
 from .refine import WallField, occupied_points, refine
-from .transforms import image_to_pose, pose_distance, se2
+from .transforms import apply, image_to_pose, inverse, pose_distance, se2
 
 
 @dataclass
@@ -64,7 +64,7 @@ def contradicts_prior(config: MergeConfig, pa: PairInput, ch: PairInput, A: np.n
     if pa.name not in priors or ch.name not in priors:
         return ''
     T = image_to_pose(A, pa.resolution, pa.origin, ch.resolution, ch.origin)
-    P = np.linalg.inv(se2(*priors[pa.name])) @ se2(*priors[ch.name])
+    P = inverse(se2(*priors[pa.name])) @ se2(*priors[ch.name])
     d, a = pose_distance(T, P)
     tol_d, tol_a = config.initial_pose_tolerance
     if d > tol_d or a > tol_a:
@@ -80,9 +80,18 @@ def refined(config: MergeConfig, pa: PairInput, ch: PairInput, A: np.ndarray) ->
     A2 = refine(field_a, pts_b, A, max_distance=config.ransac_threshold)
     if A2 is None:
         return A
-    d = np.hypot(*(A2[:2, 2] - A[:2, 2]))
+    # how far the walls moved (at their centre: the grid's corner can be metres away, where a
+    # small turn looks like a big shift)
+    centre = np.append(pts_b.mean(axis=0), 1.0) if len(pts_b) else np.array([0.0, 0.0, 1.0])
+    d = np.hypot(*((A2 - A) @ centre)[:2])
     da = abs(math.atan2(A2[1, 0], A2[0, 0]) - math.atan2(A[1, 0], A[0, 0]))
+    da = min(da, 2 * math.pi - da)
     return A2 if d <= 3 * config.ransac_threshold and da <= math.radians(5) else A
+
+
+# two placements of a child closer than this (metres, radians; the child's centre, its turn)
+# are one placement found twice, not an ambiguity
+AMBIGUITY_APART = (0.5, math.radians(5.0))
 
 
 def estimate_pair(config: MergeConfig, pa: PairInput, ch: PairInput, seed: int = 0) -> est.PairEstimate:
@@ -110,10 +119,12 @@ def estimate_pair(config: MergeConfig, pa: PairInput, ch: PairInput, seed: int =
     scored.sort(key=lambda t: (t[0], t[1]), reverse=True)
     best: Optional[est.PairEstimate] = None
     th2 = c.ransac_threshold ** 2
+    tried = []
     for rank, (ag, inl, A) in enumerate(scored):
         h = est.PairEstimate(A, matches=r.matches, inliers=inl)
-        # the runner-up is polished only when it scores nearly as well as the best
-        close = rank == 0 or (rank == 1 and ag >= scored[0][0] - 0.05)
+        # a runner-up is polished only when it scores nearly as well as the best (then it may
+        # be the right one, or make the best one ambiguous)
+        close = rank == 0 or ag >= scored[0][0] - max(0.05, c.ambiguity_margin)
         if c.refine and close and ag >= c.min_agreement - 0.2:
             h.A = refined(c, pa, ch, A)
         good_inl = int(est._inliers(h.A, src[unique], dst[unique], th2).sum()) if r.matches else 0
@@ -130,9 +141,12 @@ def estimate_pair(config: MergeConfig, pa: PairInput, ch: PairInput, seed: int =
             h.reason = 'inlier ratio %.3f < %.3f' % (h.reliability, c.min_reliability)
         else:
             h.accepted = True
+        tried.append(h)
         # The grids decide between hypotheses: the best-agreeing accepted one wins.
         if best is None or (h.accepted, h.agreement, h.inliers) > (best.accepted, best.agreement, best.inliers):
             best = h
+    if best is not None and best.accepted:
+        _check_ambiguity(c, pa, ch, best, tried)
     if best is None and hyps:
         r.inliers = max(int(m.sum()) for _, m in hyps)
         r.reason = 'too few inliers (%d < %d)' % (r.inliers, c.min_inliers)
@@ -141,3 +155,39 @@ def estimate_pair(config: MergeConfig, pa: PairInput, ch: PairInput, seed: int =
         r.reason = 'RANSAC found no consistent transform'
         return r
     return best
+
+
+def _check_ambiguity(config: MergeConfig, pa: PairInput, ch: PairInput, best: est.PairEstimate,
+                     tried) -> None:
+    """Reject ``best`` when another, clearly different placement of the child also passes every
+    gate and agrees nearly as well: the child looks alike in two places of the parent (a
+    building of identical halves, seen whole by the parent), and the grids cannot say which.
+    The runner-up is kept in ``best.extra['runner_up']`` (agreement, metres, degrees apart)."""
+    box = ch.levels > 0
+    rr, cc = np.nonzero(box)
+    if rr.size == 0:
+        return
+    centre = np.array([[cc.mean(), rr.mean()]])
+    rival = None
+    for h in tried:
+        if h is best or not h.accepted:
+            continue
+        d = np.hypot(*(apply(h.A, centre) - apply(best.A, centre))[0]) * pa.resolution
+        da = abs(math.atan2(h.A[1, 0], h.A[0, 0]) - math.atan2(best.A[1, 0], best.A[0, 0]))
+        da = min(da, 2 * math.pi - da)
+        if d <= AMBIGUITY_APART[0] and da <= AMBIGUITY_APART[1]:
+            continue          # the same placement, found twice
+        if rival is None or h.agreement > rival[0]:
+            rival = (h.agreement, d, math.degrees(da))
+    import os as _os  # TEMP-MEASURE
+    if _os.environ.get('AMB_LOG'):  # TEMP-MEASURE
+        with open(_os.environ['AMB_LOG'], 'a') as _f:  # TEMP-MEASURE
+            _f.write('%s|%s best %.3f ov %d rel %.3f rival %s\n' % (pa.name, ch.name, best.agreement, best.overlap, best.reliability, rival))  # TEMP-MEASURE
+    if rival is None:
+        return
+    best.extra['runner_up'] = rival
+    if config.ambiguity_margin > 0 and rival[0] >= best.agreement - config.ambiguity_margin:
+        best.accepted = False
+        best.reason = ('ambiguous: a second placement %.2f m, %.0f deg away also verifies (agreement '
+                       '%.3f vs %.3f): the map looks alike in both places' % (rival[1], rival[2], rival[0],
+                                                                             best.agreement))

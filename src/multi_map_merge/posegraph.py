@@ -14,13 +14,13 @@ from typing import Dict, List, Optional, Tuple
 
 import numpy as np
 
-from .transforms import se2, xyyaw
+from .transforms import inverse, se2, xyyaw
 
 Link = Tuple[str, str, np.ndarray, float]   # (a, b, Z_ab 3x3, weight)
 
 
 def _residual(Ta: np.ndarray, Tb: np.ndarray, Z: np.ndarray) -> np.ndarray:
-    x, y, yaw = xyyaw(np.linalg.inv(Z) @ np.linalg.inv(Ta) @ Tb)
+    x, y, yaw = xyyaw(inverse(Z) @ inverse(Ta) @ Tb)
     return np.array([x, y, yaw])
 
 

@@ -76,7 +76,7 @@ def refine(field: WallField, src_pts: np.ndarray, A: np.ndarray, max_distance: f
     if not field.ok or src_pts.shape[0] < min_pairs:
         return None
     cur = A.copy()
-    gates = [g for g in (max_distance, 2.0, 1.5, 1.0) if g <= max_distance]
+    gates = [max_distance] + [g for g in (4.0, 3.0, 2.0, 1.5, 1.0) if g < max_distance]
     for k, gate in enumerate(gates):
         for _ in range(iterations):
             p = apply(cur, src_pts)

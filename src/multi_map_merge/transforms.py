@@ -36,8 +36,16 @@ def xyyaw(T: np.ndarray) -> Tuple[float, float, float]:
 
 
 def inverse(T: np.ndarray) -> np.ndarray:
-    """Inverse of a 3x3 rigid/affine matrix."""
-    return np.linalg.inv(T)
+    """Inverse of a 3x3 affine matrix (last row 0 0 1), in closed form: LAPACK's general
+    inverse costs far more for 3x3 (and stalls on a busy machine's BLAS threads)."""
+    a, b, c = T[0]
+    d, e, f = T[1]
+    det = a * e - b * d
+    if T[2, 0] != 0.0 or T[2, 1] != 0.0 or T[2, 2] != 1.0 or det == 0.0:
+        return np.linalg.inv(T)
+    return np.array([[e / det, -b / det, (b * f - c * e) / det],
+                     [-d / det, a / det, (c * d - a * f) / det],
+                     [0.0, 0.0, 1.0]])
 
 
 def to3x3(A: np.ndarray) -> np.ndarray:
@@ -76,17 +84,21 @@ def pose_to_image(T_ref_k: np.ndarray, res_ref: float, origin_ref: Sequence[floa
 
 
 def rigid_from_points(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
-    """Least-squares rigid 3x3 (rotation + translation, det +1) with dst ~ R src + t (Kabsch)."""
+    """Least-squares rigid 3x3 (rotation + translation, det +1) with dst ~ R src + t.
+
+    In 2D the best rotation has a closed form (the angle of the cross-covariance), no SVD:
+    this runs inside RANSAC and ICP loops hundreds of times per pair."""
     ms, md = src.mean(axis=0), dst.mean(axis=0)
-    H = (src - ms).T @ (dst - md)
-    U, _, Vt = np.linalg.svd(H)
-    d = np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0
-    R = Vt.T @ np.diag([1.0, d]) @ U.T
-    t = md - R @ ms
-    T = np.eye(3)
-    T[:2, :2] = R
-    T[:2, 2] = t
-    return T
+    a, b = src - ms, dst - md
+    sxx = float(np.dot(a[:, 0], b[:, 0]))
+    syy = float(np.dot(a[:, 1], b[:, 1]))
+    sxy = float(np.dot(a[:, 0], b[:, 1]))
+    syx = float(np.dot(a[:, 1], b[:, 0]))
+    th = math.atan2(sxy - syx, sxx + syy)
+    c, s = math.cos(th), math.sin(th)
+    return np.array([[c, -s, md[0] - (c * ms[0] - s * ms[1])],
+                     [s, c, md[1] - (s * ms[0] + c * ms[1])],
+                     [0.0, 0.0, 1.0]])
 
 
 def apply(T: np.ndarray, pts: np.ndarray) -> np.ndarray:
