@@ -446,11 +446,16 @@ class MapMerger:
             # averages them over every cycle (kept only if every link agrees with it)
             links = [(e.parent, e.child, e.T, float(min(e.inliers, 50))) for e in edges.values()
                      if e.parent in best and e.child in best]
-            if len(links) >= len(best):
+            key = tuple(sorted((a, b, edges[(a, b)].stamp) for a, b, _, _ in links))
+            with self._lock:
+                same = key == self._graph_key
+            if same:
+                graph_key = key              # nothing changed: the kept placements stand
+            elif len(links) >= len(best):
                 opt = posegraph.optimise({n: p.T for n, p in best.items()}, links, ref)
                 worst = posegraph.worst_residual(opt, links)
                 if worst is not None and worst[0] <= GRAPH_GATE[0] and worst[1] <= GRAPH_GATE[1]:
-                    graph_key = tuple(sorted((a, b, edges[(a, b)].stamp) for a, b, _, _ in links))
+                    graph_key = key
                     for n in best:
                         best[n].T = opt[n]
         with self._lock:
