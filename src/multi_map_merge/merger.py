@@ -40,6 +40,8 @@ from .transforms import image_to_pose, inverse, pose_distance, pose_to_image, se
 GRAPH_GATE = (0.3, math.radians(3.0))
 # a link re-estimated within this of the kept one (metres, radians) is the same link refined
 SAME_LINK = (0.3, math.radians(3.0))
+# a different solution replaces a kept link when it verifies this much better on the grids
+SWITCH_AGREEMENT = 0.03
 
 
 @dataclass
@@ -393,6 +395,14 @@ class MapMerger:
                 self._edges[key] = Edge(pa.name, ch.name, T, r.reliability, r.agreement,
                                         r.inliers, r.matches, time.time(), r.overlap)
                 self.state_version += 1
+            elif (not _same_link(T, old.T) and r.overlap >= 0.9 * old.overlap
+                  and r.reliability >= old.reliability - 0.1
+                  and r.agreement >= self._agreement_now(pa, ch, old.T) + SWITCH_AGREEMENT):
+                # Another solution that the grids, now larger, clearly prefer: on a corridor the
+                # first link found on small maps can be a look-alike a metre along it
+                self._edges[key] = Edge(pa.name, ch.name, T, r.reliability, r.agreement,
+                                        r.inliers, r.matches, time.time(), r.overlap)
+                self.state_version += 1
             elif r.overlap > old.overlap and _same_link(T, old.T):
                 # The kept link, found again on grown maps: the same solution, now refined on
                 # more overlap. Take its pose (a small correction, not a jump); keep the best
@@ -400,6 +410,15 @@ class MapMerger:
                 self._edges[key] = Edge(pa.name, ch.name, T, old.reliability, r.agreement,
                                         max(old.inliers, r.inliers), r.matches, time.time(), r.overlap)
                 self.state_version += 1
+
+    def _agreement_now(self, pa: RobotMap, ch: RobotMap, T: np.ndarray) -> float:
+        """Verification score of a kept link on the pair's current grids (its recorded score
+        was measured on the grids of its time)."""
+        c = self.config
+        A = pose_to_image(T, pa.grid.resolution, pa.grid.origin, ch.grid.resolution, ch.grid.origin)
+        ag, _ = est.agreement(pa.grid.levels(c.free_thresh, c.occupied_thresh),
+                              ch.grid.levels(c.free_thresh, c.occupied_thresh), A, c.agreement_tolerance)
+        return ag
 
     def _input(self, m: RobotMap) -> PairInput:
         c = self.config

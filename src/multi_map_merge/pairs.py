@@ -97,7 +97,8 @@ AMBIGUITY_APART = (0.5, math.radians(5.0))
 def estimate_pair(config: MergeConfig, pa: PairInput, ch: PairInput, seed: int = 0) -> est.PairEstimate:
     """Cells of ``ch`` -> cells of ``pa``: (2) match, (3) rigid RANSAC + inlier ratio,
     (4) verification on the grids and ICP refinement. The best-agreeing accepted hypothesis
-    is returned, or the best rejected one with its reason."""
+    is returned, or the best rejected one with its reason (also when a clearly different
+    hypothesis verifies nearly as well: ambiguous, see :func:`_check_ambiguity`)."""
     c = config
     src, dst, unique = est.match(ch.features, pa.features, c.match_candidates, c.match_ratio)
     r = est.PairEstimate(None, matches=int(unique.sum()))
@@ -120,11 +121,15 @@ def estimate_pair(config: MergeConfig, pa: PairInput, ch: PairInput, seed: int =
     best: Optional[est.PairEstimate] = None
     th2 = c.ransac_threshold ** 2
     tried = []
+    centre = _known_centre(ch.levels)
     for rank, (ag, inl, A) in enumerate(scored):
         h = est.PairEstimate(A, matches=r.matches, inliers=inl)
-        # a runner-up is polished only when it scores nearly as well as the best (then it may
-        # be the right one, or make the best one ambiguous)
-        close = rank == 0 or ag >= scored[0][0] - max(0.05, c.ambiguity_margin)
+        # the runner-up is polished only when it scores nearly as well as the best (it may be
+        # the right one); so is any clearly different placement that might make the best one
+        # ambiguous
+        close = (rank == 0 or (rank == 1 and ag >= scored[0][0] - 0.05)
+                 or (ag >= scored[0][0] - c.ambiguity_margin and centre is not None
+                     and not _same_place(A, scored[0][2], centre, pa.resolution)))
         if c.refine and close and ag >= c.min_agreement - 0.2:
             h.A = refined(c, pa, ch, A)
         good_inl = int(est._inliers(h.A, src[unique], dst[unique], th2).sum()) if r.matches else 0
@@ -145,8 +150,8 @@ def estimate_pair(config: MergeConfig, pa: PairInput, ch: PairInput, seed: int =
         # The grids decide between hypotheses: the best-agreeing accepted one wins.
         if best is None or (h.accepted, h.agreement, h.inliers) > (best.accepted, best.agreement, best.inliers):
             best = h
-    if best is not None and best.accepted:
-        _check_ambiguity(c, pa, ch, best, tried)
+    if best is not None and best.accepted and centre is not None:
+        _check_ambiguity(c, pa, best, tried, centre)
     if best is None and hyps:
         r.inliers = max(int(m.sum()) for _, m in hyps)
         r.reason = 'too few inliers (%d < %d)' % (r.inliers, c.min_inliers)
@@ -157,32 +162,38 @@ def estimate_pair(config: MergeConfig, pa: PairInput, ch: PairInput, seed: int =
     return best
 
 
-def _check_ambiguity(config: MergeConfig, pa: PairInput, ch: PairInput, best: est.PairEstimate,
-                     tried) -> None:
+def _known_centre(levels: np.ndarray) -> Optional[np.ndarray]:
+    """(1, 2) centre (col, row) of a grid's known cells; None when it has none."""
+    rr, cc = np.nonzero(levels > 0)
+    return np.array([[cc.mean(), rr.mean()]]) if rr.size else None
+
+
+def _apart(A: np.ndarray, B: np.ndarray, centre: np.ndarray, resolution: float) -> Tuple[float, float]:
+    """(metres, radians) between where two transforms put the child's centre, and its turn."""
+    d = float(np.hypot(*(apply(A, centre) - apply(B, centre))[0])) * resolution
+    da = abs(math.atan2(A[1, 0], A[0, 0]) - math.atan2(B[1, 0], B[0, 0]))
+    return d, min(da, 2 * math.pi - da)
+
+
+def _same_place(A: np.ndarray, B: np.ndarray, centre: np.ndarray, resolution: float) -> bool:
+    d, da = _apart(A, B, centre, resolution)
+    return d <= AMBIGUITY_APART[0] and da <= AMBIGUITY_APART[1]
+
+
+def _check_ambiguity(config: MergeConfig, pa: PairInput, best: est.PairEstimate, tried,
+                     centre: np.ndarray) -> None:
     """Reject ``best`` when another, clearly different placement of the child also passes every
-    gate and agrees nearly as well: the child looks alike in two places of the parent (a
-    building of identical halves, seen whole by the parent), and the grids cannot say which.
-    The runner-up is kept in ``best.extra['runner_up']`` (agreement, metres, degrees apart)."""
-    box = ch.levels > 0
-    rr, cc = np.nonzero(box)
-    if rr.size == 0:
-        return
-    centre = np.array([[cc.mean(), rr.mean()]])
+    gate and agrees nearly as well (within ``ambiguity_margin``): the child looks alike in two
+    places of the parent (a building of identical halves, seen whole by the parent), and the
+    grids cannot say which. The runner-up is kept in ``best.extra['runner_up']`` (agreement,
+    metres and degrees apart)."""
     rival = None
     for h in tried:
-        if h is best or not h.accepted:
-            continue
-        d = np.hypot(*(apply(h.A, centre) - apply(best.A, centre))[0]) * pa.resolution
-        da = abs(math.atan2(h.A[1, 0], h.A[0, 0]) - math.atan2(best.A[1, 0], best.A[0, 0]))
-        da = min(da, 2 * math.pi - da)
-        if d <= AMBIGUITY_APART[0] and da <= AMBIGUITY_APART[1]:
-            continue          # the same placement, found twice
+        if h is best or not h.accepted or _same_place(h.A, best.A, centre, pa.resolution):
+            continue          # (the same placement, found twice)
         if rival is None or h.agreement > rival[0]:
+            d, da = _apart(h.A, best.A, centre, pa.resolution)
             rival = (h.agreement, d, math.degrees(da))
-    import os as _os  # TEMP-MEASURE
-    if _os.environ.get('AMB_LOG'):  # TEMP-MEASURE
-        with open(_os.environ['AMB_LOG'], 'a') as _f:  # TEMP-MEASURE
-            _f.write('%s|%s best %.3f ov %d rel %.3f rival %s\n' % (pa.name, ch.name, best.agreement, best.overlap, best.reliability, rival))  # TEMP-MEASURE
     if rival is None:
         return
     best.extra['runner_up'] = rival
