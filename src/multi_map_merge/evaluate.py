@@ -130,7 +130,7 @@ def coarse_pose(grid: Grid, truth: Grid) -> Tuple[Optional[np.ndarray], str]:
         m.estimate()
         pl = m.placements().get('map')
         if pl is not None:
-            return pl.T, ('merger: inlier ratio %.3f, agreement %.3f, %d inliers'
+            return pl.T, ('inlier ratio %.3f, agreement %.3f, %d inliers'
                           % (pl.reliability, pl.agreement, pl.inliers))
         st = m.status().get('map')
         why = st.last_attempt.reason if st is not None and st.last_attempt is not None else 'no estimate'
