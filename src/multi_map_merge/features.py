@@ -13,7 +13,7 @@ import numpy as np
 
 from .grid import known_bbox, to_image
 
-_MARGIN = 40  # cells of unknown around the known box: AKAZE drops keypoints whose
+_MARGIN = 32  # cells of unknown around the known box: AKAZE drops keypoints whose
 # descriptor window leaves the image, so a tight crop loses the walls at the border (measured:
 # 73 features on a tb3_house map with 8 cells, 170 with 40, 181 on the whole 608x384 canvas).
 

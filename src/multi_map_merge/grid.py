@@ -58,6 +58,7 @@ class Grid:
     frame_id: str = ''
     stamp: float = 0.0
     _levels: Optional[np.ndarray] = field(default=None, repr=False, compare=False)
+    _box: Optional[tuple] = field(default=None, repr=False, compare=False)
 
     @property
     def height(self) -> int:
@@ -77,6 +78,14 @@ class Grid:
         if default:
             self._levels = lv
         return lv
+
+
+    def known_box(self) -> Optional[Tuple[int, int, int, int]]:
+        """:func:`known_bbox` of the default levels, grown by one cell (cached: grids are not
+        modified once made)."""
+        if self._box is None:
+            self._box = (known_bbox(self.levels(), 1),)
+        return self._box[0]
 
 
 def classify(data: np.ndarray, free_thresh: float = DEFAULT_FREE_THRESH,

@@ -50,16 +50,27 @@ def lattice_for(reference: Grid) -> Lattice:
 
 
 def warp_patch(levels: np.ndarray, resolution: float, origin, T_merged_k: np.ndarray,
-               lattice: Lattice, max_cells: int) -> Optional[Patch]:
+               lattice: Lattice, max_cells: int,
+               box: Optional[Tuple[int, int, int, int]] = None) -> Optional[Patch]:
     """Warp one map's levels (grid resolution ``resolution``, ``origin`` in its frame k) by the
     pose ``T_merged_k`` (metres, frame k -> merged frame) onto ``lattice``.
 
+    ``box``: the known cells' bounding box (rows, cols, half-open) if the caller has it
+    (:meth:`Grid.known_box`); found here otherwise.
     Returns None when the map has no known cell or the patch would exceed ``max_cells``."""
-    box = known_bbox(levels, 1)
+    box = known_bbox(levels, 1) if box is None else box
     if box is None:
         return None
     r0, r1, c0, c1 = box
     W_k = cell_to_metric(resolution, origin)
+    shift = _lattice_shift(T_merged_k @ W_k, lattice)
+    if shift is not None:
+        # The map's cells are lattice cells (the reference, or a map placed at a whole-cell
+        # offset with no rotation): a slice, no resampling. The patch is a read-only view.
+        if (r1 - r0) * (c1 - c0) > max_cells:
+            return None
+        view = levels[r0:r1, c0:c1]
+        return Patch(shift[0] + c0, shift[1] + r0, view)
     corners = np.array([[c0 - 0.5, r0 - 0.5], [c1 - 0.5, r0 - 0.5],
                         [c0 - 0.5, r1 - 0.5], [c1 - 0.5, r1 - 0.5]], np.float64)
     m = apply(T_merged_k @ W_k, corners)
@@ -78,6 +89,23 @@ def warp_patch(levels: np.ndarray, resolution: float, origin, T_merged_k: np.nda
     out = cv2.warpAffine(sub, M[:2], (w, h), flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP,
                          borderMode=cv2.BORDER_CONSTANT, borderValue=0)
     return Patch(i0, j0, out)
+
+
+def _lattice_shift(M: np.ndarray, lattice: Lattice) -> Optional[Tuple[int, int]]:
+    """(di, dj) when ``M`` (cells of a map -> metres in the merged frame) puts cell (c, r) at
+    lattice cell (c + di, r + dj) exactly; None when it rotates, scales or shifts by part of a
+    cell."""
+    res = lattice.resolution
+    L = M / res
+    if abs(L[0, 0] - 1) > 1e-9 or abs(L[1, 1] - 1) > 1e-9 or abs(L[0, 1]) > 1e-9 or abs(L[1, 0]) > 1e-9:
+        return None
+    # cell (0, 0)'s centre lands at lattice coordinates (fi + 0.5, fj + 0.5)
+    fi = (M[0, 2] - lattice.x0) / res - 0.5
+    fj = (M[1, 2] - lattice.y0) / res - 0.5
+    di, dj = round(fi), round(fj)
+    if abs(fi - di) > 1e-6 or abs(fj - dj) > 1e-6:
+        return None
+    return int(di), int(dj)
 
 
 def composite(patches, lattice: Lattice, frame_id: str, max_cells: int) -> Optional[Grid]:

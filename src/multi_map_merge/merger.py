@@ -28,7 +28,7 @@ import numpy as np
 from . import estimate as est
 from .config import MergeConfig
 from .features import Features
-from .grid import Grid, rescale
+from .grid import DEFAULT_FREE_THRESH, DEFAULT_OCC_THRESH, Grid, rescale
 from .merge import Lattice, Patch, composite, lattice_for, warp_patch
 from . import posegraph
 from .pairs import PairInput, compute_features, estimate_pair
@@ -396,10 +396,11 @@ class MapMerger:
                                         r.inliers, r.matches, time.time(), r.overlap)
                 self.state_version += 1
             elif (not _same_link(T, old.T) and r.overlap >= 0.9 * old.overlap
-                  and r.reliability >= old.reliability - 0.1
                   and r.agreement >= self._agreement_now(pa, ch, old.T) + SWITCH_AGREEMENT):
                 # Another solution that the grids, now larger, clearly prefer: on a corridor the
-                # first link found on small maps can be a look-alike a metre along it
+                # first link found on small maps can be a look-alike a metre along it. Inlier
+                # ratios are not compared here: they fall as maps grow (more features, more
+                # outliers), so the early look-alike would keep its lead for ever.
                 self._edges[key] = Edge(pa.name, ch.name, T, r.reliability, r.agreement,
                                         r.inliers, r.matches, time.time(), r.overlap)
                 self.state_version += 1
@@ -489,8 +490,7 @@ class MapMerger:
         new = {}
         for n, pl in best.items():
             prev = old.get(n)
-            still_linked = prev is not None and (prev.via == 'initial_pose' or all(
-                (p, q) in edges or (q, p) in edges for p, q in zip(prev.path, prev.path[1:])))
+            still_linked = prev is not None and (prev.via == 'initial_pose' or _chain_holds(prev, edges))
             if (prev is not None and still_linked and pl.reliability <= prev.reliability + c.replace_margin
                     and not (regraphed and pl.via != 'initial_pose')):
                 new[n] = prev
@@ -515,10 +515,25 @@ class MapMerger:
         if cached is not None and cached[0] == key:
             return cached[1]
         c = self.config
+        default = c.free_thresh == DEFAULT_FREE_THRESH and c.occupied_thresh == DEFAULT_OCC_THRESH
         p = warp_patch(m.grid.levels(c.free_thresh, c.occupied_thresh), m.grid.resolution,
-                       m.grid.origin, T, lattice, c.max_cells)
+                       m.grid.origin, T, lattice, c.max_cells, m.grid.known_box() if default else None)
         self._patches[m.name] = (key, p)
         return p
+
+
+def _chain_holds(pl: Placement, edges: Dict[Tuple[str, str], Edge]) -> bool:
+    """The links a placement was made of are all still kept and still say where it is: a link
+    replaced by a different solution (a look-alike corrected) moves the robot. The tolerance
+    allows for the pose graph, which moves a placement off its chain by up to GRAPH_GATE."""
+    T = np.eye(3)
+    for p, q in zip(pl.path, pl.path[1:]):
+        e = edges.get((p, q)) or edges.get((q, p))
+        if e is None:
+            return False
+        T = T @ e.towards(p)
+    d, a = pose_distance(T, pl.T)
+    return d <= GRAPH_GATE[0] + SAME_LINK[0] and a <= GRAPH_GATE[1] + SAME_LINK[1]
 
 
 def _same_link(T1: np.ndarray, T2: np.ndarray) -> bool:
@@ -547,6 +562,14 @@ _POOL = None
 _POOL_SIZE = 0
 
 
+def _worker_init() -> None:
+    """One OpenCV thread per worker: the pool already keeps every core busy, and OpenCV's own
+    threads on top of it only contend (AKAZE on a house map: 14 ms with two threads alone,
+    but two workers each running two threads are slower than two workers with one each)."""
+    import cv2
+    cv2.setNumThreads(1)
+
+
 def _pool(workers: int):
     """The process pool shared by every merger in this process (None: work inline).
 
@@ -562,6 +585,7 @@ def _pool(workers: int):
         from concurrent.futures import ProcessPoolExecutor
         if _POOL is not None:
             _POOL.shutdown(wait=False)
-        _POOL = ProcessPoolExecutor(max_workers=n, mp_context=multiprocessing.get_context('forkserver'))
+        _POOL = ProcessPoolExecutor(max_workers=n, mp_context=multiprocessing.get_context('forkserver'),
+                                    initializer=_worker_init)
         _POOL_SIZE = n
     return _POOL

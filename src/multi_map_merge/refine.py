@@ -32,27 +32,28 @@ class WallField:
         if not self.ok:
             return
         src = np.where(occ, 0, 255).astype(np.uint8)
-        self.dist, labels = cv2.distanceTransformWithLabels(
+        dist, labels = cv2.distanceTransformWithLabels(
             src, cv2.DIST_L2, 5, labelType=cv2.DIST_LABEL_PIXEL)
         # Labels number the zero (occupied) pixels in raster order, from 1.
         rr, cc = np.nonzero(occ)
+        # nearest wall cell per label, in the grid's cells (label 0: none)
         self.nearest = np.zeros((rr.size + 1, 2), np.float64)
-        self.nearest[1:, 0] = cc
-        self.nearest[1:, 1] = rr
-        self.labels = labels
+        self.nearest[1:, 0] = cc + c0
+        self.nearest[1:, 1] = rr + r0
+        # flat tables with one extra entry past the end for points outside the box (no wall)
+        self.dist_flat = np.append(dist.ravel(), np.float32(np.inf))
+        self.labels_flat = np.append(labels.ravel(), 0).astype(np.int32)
         self.shape = occ.shape
 
     def lookup(self, pts: np.ndarray):
         """For (N, 2) cell points: (valid mask, distance cells, nearest wall cell (N, 2))."""
-        local = np.rint(pts - self.offset).astype(np.int64)
         h, w = self.shape
-        valid = (local[:, 0] >= 0) & (local[:, 0] < w) & (local[:, 1] >= 0) & (local[:, 1] < h)
-        d = np.full(pts.shape[0], np.inf)
-        near = np.zeros_like(pts)
-        lc = local[valid]
-        d[valid] = self.dist[lc[:, 1], lc[:, 0]]
-        near[valid] = self.nearest[self.labels[lc[:, 1], lc[:, 0]]] + self.offset
-        return valid, d, near
+        x = np.rint(pts[:, 0] - self.offset[0]).astype(np.int64)
+        y = np.rint(pts[:, 1] - self.offset[1]).astype(np.int64)
+        # unsigned compare: negative coordinates wrap to huge values and fail too
+        valid = (x.astype(np.uint64) < w) & (y.astype(np.uint64) < h)
+        idx = np.where(valid, y * w + x, h * w)
+        return valid, self.dist_flat[idx], self.nearest[self.labels_flat[idx]]
 
 
 def occupied_points(levels: np.ndarray, max_points: int = 4000) -> np.ndarray:

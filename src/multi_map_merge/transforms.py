@@ -88,13 +88,10 @@ def rigid_from_points(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
 
     In 2D the best rotation has a closed form (the angle of the cross-covariance), no SVD:
     this runs inside RANSAC and ICP loops hundreds of times per pair."""
-    ms, md = src.mean(axis=0), dst.mean(axis=0)
-    a, b = src - ms, dst - md
-    sxx = float(np.dot(a[:, 0], b[:, 0]))
-    syy = float(np.dot(a[:, 1], b[:, 1]))
-    sxy = float(np.dot(a[:, 0], b[:, 1]))
-    syx = float(np.dot(a[:, 1], b[:, 0]))
-    th = math.atan2(sxy - syx, sxx + syy)
+    n = float(src.shape[0])
+    ms, md = src.sum(axis=0) / n, dst.sum(axis=0) / n
+    K = (src - ms).T @ (dst - md)          # [[sxx, sxy], [syx, syy]]
+    th = math.atan2(K[0, 1] - K[1, 0], K[0, 0] + K[1, 1])
     c, s = math.cos(th), math.sin(th)
     return np.array([[c, -s, md[0] - (c * ms[0] - s * ms[1])],
                      [s, c, md[1] - (s * ms[0] + c * ms[1])],

@@ -170,3 +170,31 @@ def test_others_merge_among_themselves_until_the_reference_links(intel):
     for i, n in ((1, 'b'), (2, 'c')):
         d, a = pose_error(m.placements()[n].T, truth(ps[0][1], ps[i][1]))
         assert d < 0.1 and a < 1.0
+
+
+@pytest.mark.parametrize('pose_graph', [True, False])
+def test_early_look_alike_is_replaced_despite_its_higher_inlier_ratio(intel, pose_graph):
+    """A link found on small maps can be a look-alike with a high inlier ratio; inlier ratios
+    fall as maps grow, so the right solution found later on the full grids must replace it
+    because it verifies clearly better there, whatever its inlier ratio."""
+    from multi_map_merge.merger import Edge
+    from multi_map_merge.transforms import se2
+    ps = strip_pieces(intel, [(0, 0, 0), (3, -2, 2.0), (-4, 1, -2.5)])
+    m = MapMerger(MergeConfig(reference_robot='a', pose_graph=pose_graph))
+    m.update_map('a', ps[0][0])
+    m.update_map('b', ps[1][0])
+    m.update_map('c', ps[2][0])
+    m.estimate()                        # placed right first ...
+    wrong = truth(ps[0][1], ps[1][1]) @ se2(1.2, 0.0, 0.0)   # 1.2 m along, as on a corridor
+    m._edges[('a', 'b')] = Edge('a', 'b', wrong, 1.0, 0.99, 40, 40, 0.0, 1000)
+    m.estimate()                        # ... then the look-alike is kept (maps unchanged) ...
+    assert pose_error(m.placements()['b'].T, wrong)[0] < 0.35
+    for n, (g, _) in zip('ab', ps):     # the maps grow (one cell): the pair is estimated again
+        data = g.data.copy()
+        data[0, 0] = 0 if data[0, 0] < 0 else -1
+        m.update_map(n, Grid(data, g.resolution, g.origin))
+    m.estimate()
+    e = m._edges[('a', 'b')]
+    assert e.reliability < 0.9          # the replacement's inlier ratio is lower than the kept one's
+    d, a = pose_error(m.placements()['b'].T, truth(ps[0][1], ps[1][1]))
+    assert d < 0.1 and a < 1.0
