@@ -84,7 +84,7 @@ class TestMrgsReplay(unittest.TestCase):
             print('%s-%s: agreement, overlap cells: %s' % (a, b, scores))
             ag, overlap = scores['live']
             if overlap >= 400:                    # pairs that overlap at all must agree
-                self.assertGreater(ag, 0.90, '%s-%s disagree live: %.3f' % (a, b, ag))
+                self.assertGreater(ag, 0.95, '%s-%s disagree live: %.3f' % (a, b, ag))
         # the merged map is what the robots saw: every robot's walls are in it
         occ = merged.levels() == OCCUPIED
         dist = cv2.distanceTransform((~occ).astype(np.uint8), cv2.DIST_L2, 5)

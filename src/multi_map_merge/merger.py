@@ -40,8 +40,11 @@ from .transforms import image_to_pose, inverse, pose_distance, pose_to_image, se
 GRAPH_GATE = (0.3, math.radians(3.0))
 # a link re-estimated within this of the kept one (metres, radians) is the same link refined
 SAME_LINK = (0.3, math.radians(3.0))
-# a different solution replaces a kept link when it verifies this much better on the grids
+# a different solution replaces a kept link when it verifies this much better on the grids,
+# or when it at least halves the kept link's disagreement (and gains SWITCH_MIN): near 1.0 a
+# fixed margin cannot be met even by a clearly better link (0.995 against 0.973)
 SWITCH_AGREEMENT = 0.03
+SWITCH_MIN = 0.01
 
 
 @dataclass
@@ -396,7 +399,7 @@ class MapMerger:
                                         r.inliers, r.matches, time.time(), r.overlap)
                 self.state_version += 1
             elif (not _same_link(T, old.T) and r.overlap >= 0.9 * old.overlap
-                  and r.agreement >= self._agreement_now(pa, ch, old.T) + SWITCH_AGREEMENT):
+                  and _clearly_better(r.agreement, self._agreement_now(pa, ch, old.T))):
                 # Another solution that the grids, now larger, clearly prefer: on a corridor the
                 # first link found on small maps can be a look-alike a metre along it. Inlier
                 # ratios are not compared here: they fall as maps grow (more features, more
@@ -534,6 +537,12 @@ def _chain_holds(pl: Placement, edges: Dict[Tuple[str, str], Edge]) -> bool:
         T = T @ e.towards(p)
     d, a = pose_distance(T, pl.T)
     return d <= GRAPH_GATE[0] + SAME_LINK[0] and a <= GRAPH_GATE[1] + SAME_LINK[1]
+
+
+def _clearly_better(new: float, kept: float) -> bool:
+    """A new link's agreement beats the kept link's (both on the current grids) by enough to
+    switch: SWITCH_AGREEMENT more, or half the disagreement and SWITCH_MIN more."""
+    return new >= kept + SWITCH_AGREEMENT or (new >= kept + SWITCH_MIN and 1.0 - new <= 0.5 * (1.0 - kept))
 
 
 def _same_link(T1: np.ndarray, T2: np.ndarray) -> bool:

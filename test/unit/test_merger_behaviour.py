@@ -198,3 +198,12 @@ def test_early_look_alike_is_replaced_despite_its_higher_inlier_ratio(intel, pos
     assert e.reliability < 0.9          # the replacement's inlier ratio is lower than the kept one's
     d, a = pose_error(m.placements()['b'].T, truth(ps[0][1], ps[1][1]))
     assert d < 0.1 and a < 1.0
+
+
+def test_a_clearly_better_link_is_one_that_halves_the_disagreement_near_one():
+    from multi_map_merge.merger import _clearly_better
+    assert _clearly_better(0.995, 0.973)       # isr_small: the look-alike 1.1 m along a corridor
+    assert _clearly_better(0.95, 0.91)         # 0.03 more
+    assert not _clearly_better(0.994, 0.992)   # the same link's noise
+    assert not _clearly_better(0.96, 0.95)     # less than half the disagreement, under 0.03
+    assert not _clearly_better(0.999, 0.995)   # halves it, but gains under 0.01
