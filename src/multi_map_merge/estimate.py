@@ -17,6 +17,7 @@
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import List, Optional, Tuple
 
@@ -219,17 +220,30 @@ def _inliers(A: np.ndarray, src: np.ndarray, dst: np.ndarray, th2: float) -> np.
 
 
 def agreement(lv_dst: np.ndarray, lv_src: np.ndarray, A: np.ndarray,
-              tolerance: int) -> Tuple[float, int]:
+              tolerance: int, boxes: Optional[Tuple] = None) -> Tuple[float, int]:
     """Verification of ``A`` (cells of src -> cells of dst) on the grids themselves.
 
     Returns (agreement 0..1, overlap in cells). An occupied cell of either grid that lands on
     a known cell of the other agrees if the other has an occupied cell within ``tolerance``
     cells, and counts against ``A`` if it lands on free space there.
+
+    ``boxes``: (known box of dst, known box of src), as :func:`grid.known_bbox` with no
+    margin, when the caller has them (a pair scores many hypotheses on the same grids).
     """
-    box = known_bbox(lv_dst, tolerance + 1)
-    if box is None:
+    box_d, box_s = boxes if boxes is not None else (known_bbox(lv_dst), known_bbox(lv_src))
+    if box_d is None or box_s is None:
         return 0.0, 0
-    r0, r1, c0, c1 = box
+    # Only where src's known box lands (grown by the tolerance, for the dilation) can anything
+    # be counted: on partial overlaps that is a small part of dst's box.
+    m = tolerance + 1
+    sr0, sr1, sc0, sc1 = box_s
+    corners = apply(A, np.array([[sc0, sr0], [sc1 - 1, sr0], [sc0, sr1 - 1], [sc1 - 1, sr1 - 1]], np.float64))
+    r0 = max(box_d[0] - m, int(math.floor(corners[:, 1].min())) - m, 0)
+    r1 = min(box_d[1] + m, int(math.ceil(corners[:, 1].max())) + 1 + m, lv_dst.shape[0])
+    c0 = max(box_d[2] - m, int(math.floor(corners[:, 0].min())) - m, 0)
+    c1 = min(box_d[3] + m, int(math.ceil(corners[:, 0].max())) + 1 + m, lv_dst.shape[1])
+    if r1 <= r0 or c1 <= c0:
+        return 0.0, 0
     shift = np.array([[1, 0, -c0], [0, 1, -r0], [0, 0, 1.0]])
     M = (shift @ A)[:2]
     ref = lv_dst[r0:r1, c0:c1]

@@ -15,6 +15,7 @@ import numpy as np
 from . import estimate as est
 from .config import MergeConfig
 from .features import FeatureExtractor, Features
+from .grid import known_bbox
 from .refine import WallField, occupied_points, refine
 from .transforms import apply, image_to_pose, inverse, pose_distance, se2
 
@@ -108,6 +109,7 @@ def estimate_pair(config: MergeConfig, pa: PairInput, ch: PairInput, seed: int =
     hyps = est.ransac_rigid(src, dst, c.ransac_threshold, c.ransac_iterations, seed,
                             c.ransac_hypotheses, min_count=max(2, int(0.7 * c.min_inliers)))
     lv_a, lv_b = pa.levels, ch.levels
+    boxes = (known_bbox(lv_a), known_bbox(lv_b))
     # Score every hypothesis on the grids first (cheap), then polish only the promising ones
     # by ICP (the costly step) and score them again.
     scored = []
@@ -115,7 +117,7 @@ def estimate_pair(config: MergeConfig, pa: PairInput, ch: PairInput, seed: int =
         inl = int(mask.sum())
         if inl < c.min_inliers:
             continue
-        ag, _ = est.agreement(lv_a, lv_b, A, c.agreement_tolerance)
+        ag, _ = est.agreement(lv_a, lv_b, A, c.agreement_tolerance, boxes)
         scored.append((ag, inl, A))
     scored.sort(key=lambda t: (t[0], t[1]), reverse=True)
     best: Optional[est.PairEstimate] = None
@@ -134,7 +136,7 @@ def estimate_pair(config: MergeConfig, pa: PairInput, ch: PairInput, seed: int =
             h.A = refined(c, pa, ch, A)
         good_inl = int(est._inliers(h.A, src[unique], dst[unique], th2).sum()) if r.matches else 0
         h.reliability = good_inl / float(max(1, r.matches))
-        h.agreement, h.overlap = est.agreement(lv_a, lv_b, h.A, c.agreement_tolerance)
+        h.agreement, h.overlap = est.agreement(lv_a, lv_b, h.A, c.agreement_tolerance, boxes)
         contradiction = contradicts_prior(c, pa, ch, h.A)
         if contradiction:
             h.reason = contradiction

@@ -78,12 +78,17 @@ def refine(field: WallField, src_pts: np.ndarray, A: np.ndarray, max_distance: f
         return None
     cur = A.copy()
     gates = [max_distance] + [g for g in (4.0, 3.0, 2.0, 1.5, 1.0) if g < max_distance]
+    # the wide gates only bring the walls within reach: a third of the points does that as
+    # well (most iterations happen there); the tight gates that set the result use them all
+    coarse = src_pts[::3] if src_pts.shape[0] >= 30 * min_pairs else src_pts
     for k, gate in enumerate(gates):
+        pts = coarse if gate > 1.5 else src_pts
+        need = min_pairs * pts.shape[0] // src_pts.shape[0]   # the same share of the walls
         for _ in range(iterations):
-            p = apply(cur, src_pts)
+            p = apply(cur, pts)
             valid, d, near = field.lookup(p)
             sel = valid & (d <= gate)
-            if sel.sum() < min_pairs:
+            if sel.sum() < need:
                 return cur if k > 0 else None
             step = rigid_from_points(p[sel], near[sel])
             cur = step @ cur
