@@ -151,10 +151,14 @@ def ransac_rigid(src: np.ndarray, dst: np.ndarray, threshold: float, iterations:
     if sub.size < n:
         keep = np.argsort(-pre, kind='stable')[:300]
         counts = np.zeros(c.size, np.int64)
-        ax, ay, bx, by = src[:, 0], src[:, 1], dst[:, 0], dst[:, 1]
-        ex = c[keep, None] * ax - s[keep, None] * ay + (tx[keep, None] - bx)
-        ey = s[keep, None] * ax + c[keep, None] * ay + (ty[keep, None] - by)
-        counts[keep] = ((ex * ex + ey * ey) < th2).sum(axis=1)
+        ax, ay, bx, by = (v.astype(np.float32) for v in (src[:, 0], src[:, 1], dst[:, 0], dst[:, 1]))
+        ck, sk, txk, tyk = (v[keep].astype(np.float32)[:, None] for v in (c, s, tx, ty))
+        ex = ck * ax - sk * ay + (txk - bx)
+        ey = sk * ax + ck * ay + (tyk - by)
+        ex *= ex
+        ey *= ey
+        ex += ey
+        counts[keep] = np.count_nonzero(ex < th2_32, axis=1)
     else:
         counts = pre
     out: List[Tuple[np.ndarray, np.ndarray]] = []
@@ -166,9 +170,8 @@ def ransac_rigid(src: np.ndarray, dst: np.ndarray, threshold: float, iterations:
     cx = c[order] * centre[0] - s[order] * centre[1] + tx[order]
     cy = s[order] * centre[0] + c[order] * centre[1] + ty[order]
     an = ang[order]
-    # near[a, b]: candidates a and b are one hypothesis (greedy suppression, best first)
-    dang = np.abs((an[:, None] - an[None, :] + np.pi) % (2 * np.pi) - np.pi)
-    near = (np.hypot(cx[:, None] - cx[None, :], cy[:, None] - cy[None, :]) < 3 * threshold) & (dang < np.radians(3))
+    # Greedy suppression, best first: a chosen candidate suppresses every candidate that is
+    # the same hypothesis (one vectorised row per chosen one, at most 2 * hypotheses rows).
     suppressed = np.zeros(order.size, bool)
     chosen: List[int] = []
     for k in range(order.size):
@@ -177,7 +180,8 @@ def ransac_rigid(src: np.ndarray, dst: np.ndarray, threshold: float, iterations:
         chosen.append(k)
         if len(chosen) >= 2 * hypotheses:
             break
-        suppressed |= near[k]
+        dang = np.abs((an - an[k] + np.pi) % (2 * np.pi) - np.pi)
+        suppressed |= (np.hypot(cx - cx[k], cy - cy[k]) < 3 * threshold) & (dang < np.radians(3))
     for k in chosen:
         h = order[k]
         A = np.array([[c[h], -s[h], tx[h]], [s[h], c[h], ty[h]], [0, 0, 1.0]])
