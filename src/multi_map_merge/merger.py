@@ -231,16 +231,11 @@ class MapMerger:
             return []
         # (0) links saved by an earlier run are used only once the grids confirm them
         events = self._verify_restored(maps)
-        # (1) grid -> image -> AKAZE features, only for maps that changed
-        self._features_all(maps)
-        # (2) match, (3) rigid RANSAC + inlier ratio, (4) verify on the grids, for every pair
-        # whose maps changed (in worker processes)
+        # (1) grid -> image -> AKAZE features, only for maps that changed, and (2) match,
+        # (3) rigid RANSAC + inlier ratio, (4) verify on the grids, for every pair whose maps
+        # changed (in worker processes; a pair starts as soon as its two maps have features)
         todo = self._pairs(maps, ref)
-        inputs = {n: self._input(maps[n]) for n in {x for ab in todo for x in ab}}
-        results = self._map(estimate_pair, [self.config] * len(todo), [inputs[a] for a, _ in todo],
-                            [inputs[b] for _, b in todo],
-                            [zlib.crc32(('%s|%s' % ab).encode()) for ab in todo])
-        for (a, b), r in zip(todo, results):
+        for (a, b), r in zip(todo, self._estimate_pairs(maps, todo)):
             self._keep(maps[a], maps[b], r)
         # (4) per robot keep the most reliable placement; (6) it gives the robot's TF
         return events + self._place(maps, ref)
@@ -363,6 +358,44 @@ class MapMerger:
         levels = [m.grid.levels(c.free_thresh, c.occupied_thresh) for m in todo]
         for m, f in zip(todo, self._map(compute_features, [c] * len(todo), levels)):
             self._features[m.name] = ((m.version, m.grid.resolution), f)
+
+    def _estimate_pairs(self, maps: Dict[str, RobotMap], todo: List[Tuple[str, str]]) -> List[est.PairEstimate]:
+        """Features of the maps that changed, then the pairs' estimates, in ``todo``'s order.
+
+        With a worker pool the two stages overlap: waiting for every map's features before
+        the first pair would leave a worker idle while the slowest map is described."""
+        c = self.config
+        seeds = {ab: zlib.crc32(('%s|%s' % ab).encode()) for ab in todo}
+        stale = [m for m in maps.values()
+                 if self._features.get(m.name, (None,))[0] != (m.version, m.grid.resolution)]
+        pool = _pool(c.workers)
+        if pool is None or not stale:
+            self._features_all(maps)
+            inputs = {n: self._input(maps[n]) for n in {x for ab in todo for x in ab}}
+            return self._map(estimate_pair, [c] * len(todo), [inputs[a] for a, _ in todo],
+                             [inputs[b] for _, b in todo], [seeds[ab] for ab in todo])
+        from concurrent.futures import as_completed
+        waiting = {pool.submit(compute_features, c, m.grid.levels(c.free_thresh, c.occupied_thresh)): m
+                   for m in stale}
+        ready = set(maps) - {m.name for m in stale}
+        queued: Dict[Tuple[str, str], object] = {}
+        inputs: Dict[str, PairInput] = {}
+
+        def submit_ready() -> None:
+            for ab in todo:
+                if ab not in queued and ab[0] in ready and ab[1] in ready:
+                    for n in ab:
+                        if n not in inputs:
+                            inputs[n] = self._input(maps[n])
+                    queued[ab] = pool.submit(estimate_pair, c, inputs[ab[0]], inputs[ab[1]], seeds[ab])
+
+        submit_ready()
+        for fut in as_completed(waiting):
+            m = waiting[fut]
+            self._features[m.name] = ((m.version, m.grid.resolution), fut.result())
+            ready.add(m.name)
+            submit_ready()
+        return [queued[ab].result() for ab in todo]
 
     def _map(self, fn, *iterables):
         """fn over the arguments in the worker pool (in this process when workers == 1)."""
