@@ -368,6 +368,8 @@ class MapMerger:
         seeds = {ab: zlib.crc32(('%s|%s' % ab).encode()) for ab in todo}
         stale = [m for m in maps.values()
                  if self._features.get(m.name, (None,))[0] != (m.version, m.grid.resolution)]
+        # the biggest maps first: the last task to start should be a short one
+        stale.sort(key=lambda m: -m.grid.width * m.grid.height)
         pool = _pool(c.workers)
         if pool is None or not stale:
             self._features_all(maps)
