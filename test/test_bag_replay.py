@@ -3,7 +3,6 @@
 (real rosbag play --clock, /use_sim_time, the node, tf2), scored against the bag's truth."""
 import math
 import os
-import signal
 import subprocess
 import sys
 import tempfile
@@ -14,6 +13,8 @@ import numpy as np
 import rospkg
 import rospy
 import rostest
+
+from rostest_helpers import stop_launch
 
 from multi_map_merge.evaluate import load_truth, score_map, transform_errors
 from multi_map_merge.mapio import load_map
@@ -40,11 +41,7 @@ class TestBagReplay(unittest.TestCase):
         try:
             rec = record_replay(ROBOTS, period=0.5, idle=4.0, timeout=200.0)
         finally:
-            os.killpg(launch.pid, signal.SIGINT)
-            try:
-                launch.wait(20)
-            except subprocess.TimeoutExpired:
-                os.killpg(launch.pid, signal.SIGKILL)
+            stop_launch(launch)
         truth = load_truth(bag[:-4] + '.truth.yaml')
         self.assertIsNotNone(rec['clock'], 'no /clock: the bag did not play')
         self.assertGreater(rec['clock'], 1_600_000_100.0, 'the bag did not play to its end')

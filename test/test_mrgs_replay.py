@@ -4,16 +4,16 @@ by replay_robot_bags.launch, end up merged into one consistent map (skipped with
 ../shared/data)."""
 import math
 import os
-import signal
 import subprocess
 import time
 import unittest
 
 import cv2
 import numpy as np
-import rospkg
 import rospy
 import rostest
+
+from rostest_helpers import shared_data, stop_launch
 
 from multi_map_merge.config import MergeConfig
 from multi_map_merge.grid import OCCUPIED
@@ -24,14 +24,6 @@ from multi_map_merge.estimate import agreement
 from multi_map_merge.transforms import cell_to_metric, pose_distance, pose_to_image
 
 ROBOTS = ['tb3_0', 'tb3_1', 'tb3_2']
-
-
-def shared_data():
-    env = os.environ.get('MMM_SHARED_DATA')
-    if env is not None:
-        return env
-    pkg = os.path.realpath(rospkg.RosPack().get_path('multi_map_merge'))
-    return os.path.join(os.path.dirname(pkg), 'shared', 'data')
 
 
 class TestMrgsReplay(unittest.TestCase):
@@ -55,11 +47,7 @@ class TestMrgsReplay(unittest.TestCase):
             tf = lookup_transforms('map', ['%s/map' % r for r in ROBOTS], 10.0)
             merged = wait_for_map('/map', 10.0)
         finally:
-            os.killpg(launch.pid, signal.SIGINT)
-            try:
-                launch.wait(20)
-            except subprocess.TimeoutExpired:
-                os.killpg(launch.pid, signal.SIGKILL)
+            stop_launch(launch)
         self.assertEqual(sorted(tf), ['%s/map' % r for r in ROBOTS], 'TF of every robot, by tf2')
         self.assertIsNotNone(merged)
         finals = {r: read_bag_maps(b)['/map'][-1] for r, b in zip(ROBOTS, bags)}

@@ -48,6 +48,7 @@ class MergeConfig:
     initial_poses: Dict[str, List[float]] = field(default_factory=dict)  # robot: [x, y, yaw]
     initial_pose_tolerance: List[float] = field(default_factory=lambda: [1.0, 0.35])  # m, rad
     trust_initial_poses: bool = False        # place robots with no verified link at their prior
+    init_pose_params: bool = True            # node: also read m-explore's /<robot>/map_merge/init_pose_{x,y,yaw}
     # --- speed ---
     workers: int = 0                         # estimation processes; 0 = one per core, 1 = inline
     # --- persistence (node only) ---

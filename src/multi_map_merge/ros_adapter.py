@@ -199,6 +199,33 @@ class MergeNode:
                 rospy.Subscriber(topic + '_updates', NumpyGridUpdate, self._on_update,
                                  callback_args=robot, queue_size=10, buff_size=2 ** 24)]
         rospy.loginfo('multi_map_merge: robot %s found, subscribed to %s', robot, topic)
+        self._read_init_pose(robot)
+
+    def _read_init_pose(self, robot: str) -> None:
+        """m-explore's per-robot prior, ``/<robot>/map_merge/init_pose_{x,y,yaw}`` (metres,
+        radians; the robot's map frame in a common world frame), for a robot that
+        ``initial_poses`` does not list. Users coming from m-explore, and the turtlebot3
+        multi-robot launch files, set these."""
+        if not self.cfg.init_pose_params or robot in self.cfg.initial_poses:
+            return
+        names = ['/%s/map_merge/init_pose_%s' % (robot, k) for k in ('x', 'y', 'yaw')]
+        try:
+            if not all(rospy.has_param(n) for n in names):
+                return
+            pose = [float(rospy.get_param(n)) for n in names]
+        except (KeyError, TypeError, ValueError) as e:
+            rospy.logerr('multi_map_merge: ignoring the initial pose of %s: %s', robot, e)
+            return
+        except Exception as e:   # the master gone for a moment
+            rospy.logwarn('multi_map_merge: could not read the initial pose of %s: %s', robot, e)
+            return
+        if not all(math.isfinite(v) for v in pose):
+            rospy.logerr('multi_map_merge: ignoring the initial pose of %s: not finite %s', robot, pose)
+            return
+        # a new dict, not an update: the estimation thread reads the old one meanwhile
+        self.cfg.initial_poses = dict(self.cfg.initial_poses, **{robot: pose})
+        rospy.loginfo('multi_map_merge: initial pose of %s from /%s/map_merge/init_pose_*: x=%.3f m '
+                      'y=%.3f m yaw=%.2f deg', robot, robot, pose[0], pose[1], math.degrees(pose[2]))
 
     def _refuse(self, robot: str, reason: str) -> None:
         if self._bad.get(robot) != reason:  # once per robot and reason, not per message
