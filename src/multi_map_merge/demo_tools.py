@@ -26,7 +26,7 @@ import yaml
 
 from .grid import Grid
 from .mapio import grid_to_pgm, load_map, save_map
-from .transforms import cell_to_metric, se2, xyyaw
+from .transforms import apply, cell_to_metric, inverse, pose_to_image, se2, xyyaw
 
 # the paper's Table 1 (four Turtlebot3s vs one, 117 m2 house)
 PAPER = {'multi': (0.9105, 0.076), 'single': (0.7024, 0.085)}
@@ -67,16 +67,14 @@ def _image(grid: Grid) -> np.ndarray:
 def warp_to(grid: Grid, T_dst_src: np.ndarray, dst: Grid) -> Grid:
     """``grid`` (frame src) resampled on ``dst``'s lattice, given the pose of src in dst's frame."""
     from .grid import levels_to_values
-    M = np.linalg.inv(cell_to_metric(grid.resolution, grid.origin)) @ np.linalg.inv(T_dst_src) \
-        @ cell_to_metric(dst.resolution, dst.origin)         # dst cells -> src cells
+    M = pose_to_image(inverse(T_dst_src), grid.resolution, grid.origin, dst.resolution, dst.origin)
     lv = cv2.warpAffine(grid.levels(), M[:2], (dst.width, dst.height),
                         flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP, borderValue=0)
     return Grid(levels_to_values(lv), dst.resolution, dst.origin, dst.frame_id)
 
 
 def _to_pixels(pts_xy: np.ndarray, dst: Grid) -> np.ndarray:
-    W = np.linalg.inv(cell_to_metric(dst.resolution, dst.origin))
-    c = (W[:2, :2] @ pts_xy.T).T + W[:2, 2]
+    c = apply(inverse(cell_to_metric(dst.resolution, dst.origin)), pts_xy)
     return np.stack([c[:, 0], dst.height - 1 - c[:, 1]], axis=1)
 
 

@@ -26,7 +26,7 @@ import numpy as np
 
 from .features import Features
 from .grid import FREE, OCCUPIED, known_bbox
-from .transforms import apply, rigid_from_points
+from .transforms import apply, rigid_from_points, turn_between, wrap_angle
 
 
 @dataclass
@@ -180,7 +180,7 @@ def ransac_rigid(src: np.ndarray, dst: np.ndarray, threshold: float, iterations:
         chosen.append(k)
         if len(chosen) >= 2 * hypotheses:
             break
-        dang = np.abs((an - an[k] + np.pi) % (2 * np.pi) - np.pi)
+        dang = np.abs(wrap_angle(an - an[k]))
         suppressed |= (np.hypot(cx - cx[k], cy - cy[k]) < 3 * threshold) & (dang < np.radians(3))
     for k in chosen:
         h = order[k]
@@ -213,9 +213,7 @@ def _refit(A: np.ndarray, src: np.ndarray, dst: np.ndarray, th2: float):
 def _same(A: np.ndarray, B: np.ndarray, centre: np.ndarray, threshold: float) -> bool:
     """Two hypotheses that put the matches' centre within a few cells and turn alike."""
     d = apply(A, centre[None])[0] - apply(B, centre[None])[0]
-    da = abs(np.arctan2(A[1, 0], A[0, 0]) - np.arctan2(B[1, 0], B[0, 0]))
-    da = min(da, 2 * np.pi - da)
-    return bool(np.hypot(*d) < 3 * threshold and da < np.radians(3))
+    return bool(np.hypot(*d) < 3 * threshold and turn_between(A, B) < np.radians(3))
 
 
 def _inliers(A: np.ndarray, src: np.ndarray, dst: np.ndarray, th2: float) -> np.ndarray:

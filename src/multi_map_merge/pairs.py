@@ -17,7 +17,7 @@ from .config import MergeConfig
 from .features import FeatureExtractor, Features
 from .grid import known_bbox
 from .refine import WallField, occupied_points, refine
-from .transforms import apply, image_to_pose, inverse, pose_distance, se2
+from .transforms import apply, image_to_pose, inverse, pose_distance, se2, turn_between
 
 
 @dataclass
@@ -85,9 +85,7 @@ def refined(config: MergeConfig, pa: PairInput, ch: PairInput, A: np.ndarray) ->
     # small turn looks like a big shift)
     centre = np.append(pts_b.mean(axis=0), 1.0) if len(pts_b) else np.array([0.0, 0.0, 1.0])
     d = np.hypot(*((A2 - A) @ centre)[:2])
-    da = abs(math.atan2(A2[1, 0], A2[0, 0]) - math.atan2(A[1, 0], A[0, 0]))
-    da = min(da, 2 * math.pi - da)
-    return A2 if d <= 3 * config.ransac_threshold and da <= math.radians(5) else A
+    return A2 if d <= 3 * config.ransac_threshold and turn_between(A2, A) <= math.radians(5) else A
 
 
 # two placements of a child closer than this (metres, radians; the child's centre, its turn)
@@ -173,8 +171,7 @@ def _known_centre(levels: np.ndarray) -> Optional[np.ndarray]:
 def _apart(A: np.ndarray, B: np.ndarray, centre: np.ndarray, resolution: float) -> Tuple[float, float]:
     """(metres, radians) between where two transforms put the child's centre, and its turn."""
     d = float(np.hypot(*(apply(A, centre) - apply(B, centre))[0])) * resolution
-    da = abs(math.atan2(A[1, 0], A[0, 0]) - math.atan2(B[1, 0], B[0, 0]))
-    return d, min(da, 2 * math.pi - da)
+    return d, turn_between(A, B)
 
 
 def _same_place(A: np.ndarray, B: np.ndarray, centre: np.ndarray, resolution: float) -> bool:

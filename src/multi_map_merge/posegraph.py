@@ -14,7 +14,7 @@ from typing import Dict, List, Optional, Tuple
 
 import numpy as np
 
-from .transforms import inverse, se2, xyyaw
+from .transforms import inverse, se2, wrap_angle, xyyaw
 
 Link = Tuple[str, str, np.ndarray, float]   # (a, b, Z_ab 3x3, weight)
 
@@ -22,10 +22,6 @@ Link = Tuple[str, str, np.ndarray, float]   # (a, b, Z_ab 3x3, weight)
 def _residual(Ta: np.ndarray, Tb: np.ndarray, Z: np.ndarray) -> np.ndarray:
     x, y, yaw = xyyaw(inverse(Z) @ inverse(Ta) @ Tb)
     return np.array([x, y, yaw])
-
-
-def _wrap(a):
-    return (a + np.pi) % (2 * np.pi) - np.pi
 
 
 def optimise(poses: Dict[str, np.ndarray], links: List[Link], fixed: str,
@@ -55,7 +51,7 @@ def optimise(poses: Dict[str, np.ndarray], links: List[Link], fixed: str,
         lx, ly = ca * dx + sa * dy, -sa * dx + ca * dy            # Ra^T (tb - ta)
         ux, uy = lx - Zp[:, 0], ly - Zp[:, 1]
         ex, ey = cz * ux + sz * uy, -sz * ux + cz * uy            # Rz^T (...)
-        eth = _wrap(P[ib, 2] - P[ia, 2] - Zp[:, 2])
+        eth = wrap_angle(P[ib, 2] - P[ia, 2] - Zp[:, 2])
         r = np.stack([ex / sigma_xy, ey / sigma_xy, eth / sigma_yaw], 1) * w[:, None]
         # d(Ra^T d)/d(ta) = -Ra^T, /d(tb) = Ra^T, /d(yaw_a) = [[-sa, ca], [-ca, -sa]] d
         Ra_T = np.stack([np.stack([ca, sa], 1), np.stack([-sa, ca], 1)], 1)     # (E, 2, 2)
@@ -80,7 +76,7 @@ def optimise(poses: Dict[str, np.ndarray], links: List[Link], fixed: str,
         H = J.T @ J + 1e-9 * np.eye(3 * N)
         dxv = -np.linalg.solve(H, J.T @ r)
         P[1:] += dxv.reshape(N, 3)
-        P[1:, 2] = _wrap(P[1:, 2])
+        P[1:, 2] = wrap_angle(P[1:, 2])
         if np.max(np.abs(dxv)) < 1e-8:
             break
     out = dict(poses)

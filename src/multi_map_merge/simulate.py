@@ -38,6 +38,7 @@ import cv2
 import numpy as np
 
 from .grid import FREE, OCCUPIED, Grid
+from .transforms import wrap_angle
 
 LDS02_OFFSET = (-0.032, 0.0, 0.172)   # base_footprint -> base_scan on a Burger, metres
 
@@ -118,28 +119,24 @@ class RobotRun:
 
     @property
     def turned(self) -> float:
-        return float(np.sum(np.abs(wrap(np.diff(self.true[:, 2])))))
+        return float(np.sum(np.abs(wrap_angle(np.diff(self.true[:, 2])))))
 
 
 # ---------------------------------------------------------------------------------------- poses
-
-def wrap(a):
-    return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi
-
 
 def compose(p: np.ndarray, d: np.ndarray) -> np.ndarray:
     """p ⊕ d for arrays of (x, y, yaw): d expressed in p's frame."""
     c, s = np.cos(p[..., 2]), np.sin(p[..., 2])
     return np.stack([p[..., 0] + c * d[..., 0] - s * d[..., 1],
                      p[..., 1] + s * d[..., 0] + c * d[..., 1],
-                     wrap(p[..., 2] + d[..., 2])], axis=-1)
+                     wrap_angle(p[..., 2] + d[..., 2])], axis=-1)
 
 
 def relative(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """a^-1 ⊕ b: pose b seen from pose a."""
     c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
     dx, dy = b[..., 0] - a[..., 0], b[..., 1] - a[..., 1]
-    return np.stack([c * dx + s * dy, -s * dx + c * dy, wrap(b[..., 2] - a[..., 2])], axis=-1)
+    return np.stack([c * dx + s * dy, -s * dx + c * dy, wrap_angle(b[..., 2] - a[..., 2])], axis=-1)
 
 
 def integrate(increments: np.ndarray) -> np.ndarray:
@@ -376,7 +373,7 @@ def drive(route: np.ndarray, start: Tuple[float, float, float], cfg: SimConfig) 
         d = np.hypot(*(tgt - pose[:2]))
         if i == len(pts) - 1 and d < 0.05:
             break
-        e = float(wrap(math.atan2(tgt[1] - pose[1], tgt[0] - pose[0]) - pose[2]))
+        e = float(wrap_angle(math.atan2(tgt[1] - pose[1], tgt[0] - pose[0]) - pose[2]))
         w = float(np.clip(3.0 * e, -cfg.turn_rate, cfg.turn_rate))
         v = 0.0 if abs(e) > 0.5 else cfg.speed * math.cos(e) * min(1.0, d / 0.1 + 0.3)
         pose = compose(pose, np.array([v * dt, 0.0, w * dt]))
@@ -667,7 +664,7 @@ def interpolate_poses(t_src: np.ndarray, poses: np.ndarray, t: np.ndarray) -> np
     """Poses at times ``t``, linear in x, y and in the unwrapped yaw."""
     yaw = np.unwrap(poses[:, 2])
     return np.stack([np.interp(t, t_src, poses[:, 0]), np.interp(t, t_src, poses[:, 1]),
-                     wrap(np.interp(t, t_src, yaw))], axis=1)
+                     wrap_angle(np.interp(t, t_src, yaw))], axis=1)
 
 
 def simulate_carmen(log: CarmenLog, cfg: SimConfig, overlap: float = 0.25,

@@ -107,5 +107,14 @@ def pose_distance(T1: np.ndarray, T2: np.ndarray) -> Tuple[float, float]:
     """(translation distance in metres, |yaw difference| in radians) between two poses."""
     x1, y1, a1 = xyyaw(T1)
     x2, y2, a2 = xyyaw(T2)
-    da = abs((a1 - a2 + math.pi) % (2 * math.pi) - math.pi)
-    return math.hypot(x1 - x2, y1 - y2), da
+    return math.hypot(x1 - x2, y1 - y2), abs(float(wrap_angle(a1 - a2)))
+
+
+def wrap_angle(a):
+    """Angle(s) in radians folded into [-pi, pi) (scalars or arrays)."""
+    return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi
+
+
+def turn_between(A: np.ndarray, B: np.ndarray) -> float:
+    """|angle| in radians (0..pi) between the rotations of two 3x3 rigid transforms."""
+    return abs(float(wrap_angle(math.atan2(A[1, 0], A[0, 0]) - math.atan2(B[1, 0], B[0, 0]))))

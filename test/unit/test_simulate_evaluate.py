@@ -13,7 +13,7 @@ from multi_map_merge.evaluate import score_map, transform_errors
 from multi_map_merge.grid import FREE, OCCUPIED, Grid
 from multi_map_merge.mapio import load_map
 from multi_map_merge.posegraph import optimise, worst_residual
-from multi_map_merge.transforms import se2, xyyaw
+from multi_map_merge.transforms import se2, wrap_angle, xyyaw
 
 HOUSE = os.path.join(DATA, 'aws_small_house.yaml')
 
@@ -86,7 +86,7 @@ def test_errors_grow_with_distance(team):
 
     def slam_error(run):   # end pose of the SLAM estimate against the truth, in the map frame
         truth = sim.relative(run.true[0], run.true[-1])
-        return math.hypot(*(run.slam[-1, :2] - truth[:2])), abs(sim.wrap(run.slam[-1, 2] - truth[2]))
+        return math.hypot(*(run.slam[-1, :2] - truth[:2])), abs(wrap_angle(run.slam[-1, 2] - truth[2]))
 
     def odom_error(run):
         truth = sim.relative(run.true[0], run.true[-1])
