@@ -425,30 +425,34 @@ class MapMerger:
         with self._lock:
             self._tried[key] = (pa.version, ch.version)
             self._attempts[key] = r
-            if not r.accepted:
-                return
-            T = image_to_pose(r.A, pa.grid.resolution, pa.grid.origin, ch.grid.resolution, ch.grid.origin)
             old = self._edges.get(key)
-            if old is None or r.reliability > old.reliability + c.replace_margin:
-                self._edges[key] = Edge(pa.name, ch.name, T, r.reliability, r.agreement,
-                                        r.inliers, r.matches, time.time(), r.overlap)
-                self.state_version += 1
-            elif (not _same_link(T, old.T) and r.overlap >= 0.9 * old.overlap
+        if not r.accepted:
+            return
+        T = image_to_pose(r.A, pa.grid.resolution, pa.grid.origin, ch.grid.resolution, ch.grid.origin)
+        reliability, inliers = r.reliability, r.inliers
+        if old is None or r.reliability > old.reliability + c.replace_margin:
+            pass                     # the paper's rule: more reliable
+        elif _same_link(T, old.T):
+            if r.overlap <= old.overlap:
+                return
+            # The kept link, found again on grown maps: the same solution, now refined on
+            # more overlap. Take its pose (a small correction, not a jump); keep the best
+            # reliability seen. Early links on small maps are otherwise stuck a degree off.
+            reliability, inliers = old.reliability, max(old.inliers, r.inliers)
+        elif not (r.overlap >= 0.9 * old.overlap
                   and _clearly_better(r.agreement, self._agreement_now(pa, ch, old.T))):
-                # Another solution that the grids, now larger, clearly prefer: on a corridor the
-                # first link found on small maps can be a look-alike a metre along it. Inlier
-                # ratios are not compared here: they fall as maps grow (more features, more
-                # outliers), so the early look-alike would keep its lead for ever.
-                self._edges[key] = Edge(pa.name, ch.name, T, r.reliability, r.agreement,
-                                        r.inliers, r.matches, time.time(), r.overlap)
-                self.state_version += 1
-            elif r.overlap > old.overlap and _same_link(T, old.T):
-                # The kept link, found again on grown maps: the same solution, now refined on
-                # more overlap. Take its pose (a small correction, not a jump); keep the best
-                # reliability seen. Early links on small maps are otherwise stuck a degree off.
-                self._edges[key] = Edge(pa.name, ch.name, T, old.reliability, r.agreement,
-                                        max(old.inliers, r.inliers), r.matches, time.time(), r.overlap)
-                self.state_version += 1
+            # Another solution replaces the kept link only if the grids, now larger, clearly
+            # prefer it: on a corridor the first link found on small maps can be a look-alike
+            # a metre along it. Inlier ratios are not compared here: they fall as maps grow
+            # (more features, more outliers), so the early look-alike would keep its lead for
+            # ever. (The kept link's score is computed outside the lock: it warps a grid.)
+            return
+        with self._lock:
+            if self._edges.get(key) is not old:
+                return               # forgotten (reset, map restart) meanwhile
+            self._edges[key] = Edge(pa.name, ch.name, T, reliability, r.agreement, inliers, r.matches,
+                                    time.time(), r.overlap)
+            self.state_version += 1
 
     def _agreement_now(self, pa: RobotMap, ch: RobotMap, T: np.ndarray) -> float:
         """Verification score of a kept link on the pair's current grids (its recorded score
