@@ -40,7 +40,8 @@ def quaternion_yaw(q) -> float:
 
 
 def grid_from_msg(msg, max_cells: int) -> Grid:
-    """Validated Grid from a (numpy_msg) OccupancyGrid; raises GridError with the reason."""
+    """Validated Grid from an OccupancyGrid (numpy_msg, or plain as rosbag reads it); raises
+    GridError with the reason."""
     info = msg.info
     o = info.origin
     q = (o.orientation.x, o.orientation.y, o.orientation.z, o.orientation.w)
@@ -49,7 +50,8 @@ def grid_from_msg(msg, max_cells: int) -> Grid:
     if not all(math.isfinite(v) for v in q):
         raise GridError('origin orientation is not finite: %r' % (q,))
     yaw = quaternion_yaw(o.orientation)
-    data = np.asarray(msg.data)
+    # plain messages from a bag carry int8[] as bytes or a tuple: bytes are viewed, not copied
+    data = np.frombuffer(msg.data, np.int8) if isinstance(msg.data, (bytes, bytearray)) else np.asarray(msg.data)
     return make_grid(data, int(info.width), int(info.height), float(info.resolution),
                      (float(o.position.x), float(o.position.y), yaw), msg.header.frame_id,
                      msg.header.stamp.to_sec(), max_cells)
@@ -480,19 +482,22 @@ def wait_for_master(timeout: float) -> bool:
     return False
 
 
+def diagnostics_by_robot(msg, out: Dict[str, Dict[str, str]]) -> None:
+    """Store the merger's per-robot diagnostics of ``msg`` in ``out``: robot -> its key/values
+    plus 'message'."""
+    for st in msg.status:
+        if st.hardware_id:
+            d = {kv.key: kv.value for kv in st.values}
+            d['message'] = st.message
+            out[st.hardware_id] = d
+
+
 def wait_for_merge(robots: Sequence[str], timeout: float, settle: float = 0.0) -> Dict[str, Dict[str, str]]:
     """Per-robot key/values of the merger's /diagnostics once every robot in ``robots`` is
     merged and ``settle`` more seconds have passed (or at ``timeout``)."""
     latest: Dict[str, Dict[str, str]] = {}
 
-    def on_diag(msg):
-        for s in msg.status:
-            if s.hardware_id:
-                d = {kv.key: kv.value for kv in s.values}
-                d['message'] = s.message
-                latest[s.hardware_id] = d
-
-    sub = rospy.Subscriber('/diagnostics', DiagnosticArray, on_diag)
+    sub = rospy.Subscriber('/diagnostics', DiagnosticArray, diagnostics_by_robot, callback_args=latest)
     end = time.time() + timeout
     merged_since = None
     while time.time() < end and not rospy.is_shutdown():
@@ -629,12 +634,7 @@ def read_bag_maps(path: str, max_cells: int = 100_000_000) -> Dict[str, List[Gri
     with rosbag.Bag(path) as bag:
         topics = [t for t, i in bag.get_type_and_topic_info().topics.items() if i.msg_type == 'nav_msgs/OccupancyGrid']
         for topic, msg, _ in bag.read_messages(topics=topics):
-            w, h = int(msg.info.width), int(msg.info.height)
-            data = np.frombuffer(msg.data, np.int8) if isinstance(msg.data, bytes) else np.asarray(msg.data, np.int8)
-            o = msg.info.origin
-            out.setdefault(topic, []).append(make_grid(
-                data, w, h, float(msg.info.resolution), (o.position.x, o.position.y, quaternion_yaw(o.orientation)),
-                msg.header.frame_id, msg.header.stamp.to_sec(), max_cells))
+            out.setdefault(topic, []).append(grid_from_msg(msg, max_cells))
     return out
 
 
@@ -661,16 +661,10 @@ def record_replay(robots: Sequence[str], period: float = 0.5, idle: float = 4.0,
         if state['clock'] is None or c > state['clock']:
             state['clock'], state['clock_wall'] = c, time.time()
 
-    def on_diag(msg):
-        for s in msg.status:
-            if s.hardware_id:
-                d = {kv.key: kv.value for kv in s.values}
-                d['message'] = s.message
-                state['diag'][s.hardware_id] = d
-
     subs = [rospy.Subscriber('/map', NumpyGrid, on_map, queue_size=1, buff_size=2 ** 26),
             rospy.Subscriber('/clock', Clock, on_clock, queue_size=10),
-            rospy.Subscriber('/diagnostics', DiagnosticArray, on_diag, queue_size=10)]
+            rospy.Subscriber('/diagnostics', DiagnosticArray, diagnostics_by_robot, callback_args=state['diag'],
+                             queue_size=10)]
     buf = tf2_ros.Buffer(cache_time=rospy.Duration(3600.0))
     tf2_ros.TransformListener(buf)
     traj: Dict[str, List] = {r: [] for r in robots}
