@@ -36,6 +36,7 @@ class PairInput:
 # Per-process caches: a worker sees the same maps again and again.
 _EXTRACTORS: Dict[tuple, FeatureExtractor] = {}
 _WALLS: Dict[tuple, Tuple[WallField, np.ndarray]] = {}
+_KNOWN: Dict[tuple, tuple] = {}
 
 
 def compute_features(config: MergeConfig, levels: np.ndarray) -> Features:
@@ -55,6 +56,18 @@ def _walls(p: PairInput) -> Tuple[WallField, np.ndarray]:
             _WALLS.clear()
         w = _WALLS[key] = (WallField(p.levels), occupied_points(p.levels))
     return w
+
+
+def _known(p: PairInput) -> tuple:
+    """(known box, known centre) of a map, once per map version in this process: a map takes
+    part in N-1 pairs."""
+    key = (p.owner, p.name, p.version, p.resolution)
+    k = _KNOWN.get(key)
+    if k is None:
+        if len(_KNOWN) > 64:
+            _KNOWN.clear()
+        k = _KNOWN[key] = (known_bbox(p.levels), _known_centre(p.levels))
+    return k
 
 
 def contradicts_prior(config: MergeConfig, pa: PairInput, ch: PairInput, A: np.ndarray) -> str:
@@ -107,7 +120,7 @@ def estimate_pair(config: MergeConfig, pa: PairInput, ch: PairInput, seed: int =
     hyps = est.ransac_rigid(src, dst, c.ransac_threshold, c.ransac_iterations, seed,
                             c.ransac_hypotheses, min_count=max(2, int(0.7 * c.min_inliers)))
     lv_a, lv_b = pa.levels, ch.levels
-    boxes = (known_bbox(lv_a), known_bbox(lv_b))
+    boxes = (_known(pa)[0], _known(ch)[0])
     # Score every hypothesis on the grids first (cheap), then polish only the promising ones
     # by ICP (the costly step) and score them again.
     scored = []
@@ -121,7 +134,7 @@ def estimate_pair(config: MergeConfig, pa: PairInput, ch: PairInput, seed: int =
     best: Optional[est.PairEstimate] = None
     th2 = c.ransac_threshold ** 2
     tried = []
-    centre = _known_centre(ch.levels)
+    centre = _known(ch)[1]
     for rank, (ag, inl, A) in enumerate(scored):
         h = est.PairEstimate(A, matches=r.matches, inliers=inl)
         # the runner-up is polished only when it scores nearly as well as the best (it may be
