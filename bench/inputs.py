@@ -82,3 +82,8 @@ def configurations(quick=False):
     for n in ([2, 4, 8] if quick else [2, 4, 8, 16, 32]):
         confs.append(('intel-sized x%d' % n, 'count', pieces_windows(w, n)))
     return confs
+
+
+def median_cells(paths):
+    """Median cell count (width x height) of the map files ``paths``."""
+    return float(np.median([g.width * g.height for g in (load_map(p) for p in paths)]))

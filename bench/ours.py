@@ -10,7 +10,8 @@ SPEC: {"paths": [map yaml...], "truth": [3x3 pose of map k in map 0's frame] or 
                 process (median over the pairs, R reps)
   pool_start_ms starting the merger's worker pool (once per node; not part of cold_ms)
   cold_ms       estimate() of a new MapMerger holding every map (features + every pair + placement,
-                in the merger's worker processes as the node runs it)
+                in the merger's worker processes as the node runs it); median of R such cycles,
+                each of a new merger (cold_first_ms: the process's first)
   warm_ms       estimate() again with unchanged maps
   compose_ms    compose() of that merger for the first time (every map warped)
   publish_ms    ros_adapter.grid_to_msg (numpy_msg OccupancyGrid) + msg.serialize(BytesIO)

@@ -28,22 +28,24 @@ import peer  # noqa: E402
 import report  # noqa: E402
 
 
-def run_ours_once(paths, truth, pairs, root):
-    """One fresh process of bench/ours.py (one repetition): its own peak RSS, cold caches."""
+def run_ours_once(paths, truth, pairs, root, reps):
+    """One fresh process of bench/ours.py: its own peak RSS; ``reps`` cycles in it, each of a
+    new merger (no cache of its own: cold), as m-explore's ``--reps`` runs in one process."""
     spec = os.path.join(root, 'spec_%d.json' % len(os.listdir(root)))
     with open(spec, 'w') as f:
-        json.dump({'paths': paths, 'truth': truth, 'reps': 1, 'pairs': pairs}, f)
+        json.dump({'paths': paths, 'truth': truth, 'reps': reps, 'pairs': pairs}, f)
     r = subprocess.run([sys.executable, os.path.join(HERE, 'ours.py'), spec], capture_output=True, text=True)
     if r.returncode != 0:
         raise RuntimeError('bench/ours.py failed:\n' + r.stderr[-3000:])
     return json.loads(r.stdout.strip().splitlines()[-1])
 
 
-def run_ours(paths, truth, runs, pairs, root):
-    """Median over ``runs`` fresh processes of every figure; placements and errors of the first
-    run (estimation is deterministic: RANSAC is seeded per pair); each run's figures kept."""
+def run_ours(paths, truth, runs, pairs, root, reps):
+    """Median over ``runs`` fresh processes (each the median of its ``reps`` cycles) of every
+    figure; placements and errors of the first run (estimation is deterministic: RANSAC is
+    seeded per pair); each run's figures kept."""
     import numpy as np
-    got = [run_ours_once(paths, truth, pairs, root) for _ in range(runs)]
+    got = [run_ours_once(paths, truth, pairs, root, reps) for _ in range(runs)]
     out = dict(got[0])
     for k, v in got[0].items():
         if isinstance(v, float) and all(isinstance(g.get(k), (int, float)) for g in got):
@@ -74,27 +76,28 @@ def main():
     for name, kind, gt in inputs.configurations(a.quick):
         paths, truth = inputs.write_inputs(name.replace(' ', '_'), gt, root)
         n = len(paths)
-        reps = 3 if n <= 16 else 1    # fresh processes for ours; m-explore's --reps (same K)
+        reps = 3 if n <= 16 else 1    # fresh processes for ours
+        # cycles per process, both sides (m-explore's --reps): x16 takes m-explore ~50 s per
+        # estimation, edmonton x4 ~20 s; one repetition there keeps the run short
+        big = n > 8 or inputs.median_cells(paths) > 1_500_000
+        cycles = 1 if big else reps
         pairs = [list(p) for p in itertools.combinations(range(min(n, 3)), 2)]
         t0 = time.time()
-        ours = run_ours(paths, truth, reps, pairs, root)
+        ours = run_ours(paths, truth, reps, pairs, root, cycles)
         t_ours = time.time() - t0
         p = {}
         if pr is not None:
             t0 = time.time()
             full = n <= a.peer_max_robots
-            # m-explore x16 takes ~50 s per estimation: one repetition there keeps the run short
-            # (and on maps above 1.5 M cells: edmonton x4 with 3 repetitions takes ~60 s)
-            big = n > 8 or ours['map_cells'] > 1_500_000
-            p = pr.measure(paths, truth, 1 if big else reps, [tuple(x) for x in pairs], full=full)
-            p['reps'] = 1 if big else reps
+            p = pr.measure(paths, truth, cycles, [tuple(x) for x in pairs], full=full)
+            p['reps'] = cycles
             if not full:
                 p['skipped'] = 'full run skipped above %d robots (m-explore x16 takes ~50 s)' % a.peer_max_robots
             p['bench_s'] = time.time() - t0
         else:
             p = {'skipped': note}
         ours['bench_s'] = t_ours
-        rows.append({'name': name, 'kind': kind, 'robots': n, 'reps': reps, 'pairs': pairs,
+        rows.append({'name': name, 'kind': kind, 'robots': n, 'reps': reps, 'cycles': cycles, 'pairs': pairs,
                      'ours': ours, 'peer': p})
         print('.. %-16s ours: cold %7.0f ms (%.0f s)   m-explore: %s ms (%s s)' % (
             name, ours['cold_ms'], t_ours, report._f(p.get('estimate_ms')), report._f(p.get('bench_s'))),

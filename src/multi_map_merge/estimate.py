@@ -67,17 +67,19 @@ def match(f_src: Features, f_dst: Features, candidates: int = 2,
     """
     if len(f_src) < 2 or len(f_dst) < 2:
         return np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0, bool)
-    bf = cv2.BFMatcher(cv2.NORM_HAMMING)
-    knn = bf.knnMatch(f_src.descriptors, f_dst.descriptors, k=max(2, candidates))
-    qi, ti, good = [], [], []
-    for m in knn:
-        unique = len(m) >= 2 and m[0].distance < ratio * m[1].distance
-        for rank, x in enumerate(m[:candidates]):
-            qi.append(x.queryIdx)
-            ti.append(x.trainIdx)
-            good.append(unique and rank == 0)
+    k = min(max(2, candidates), len(f_dst))
+    # batchDistance is BFMatcher's brute force returning arrays (the same neighbours, in the
+    # same order), not one Python DMatch object per match
+    dist, idx = cv2.batchDistance(f_src.descriptors, f_dst.descriptors, -1,
+                                  normType=cv2.NORM_HAMMING, K=k)
+    unique = dist[:, 0] < ratio * dist[:, 1]
+    take = min(candidates, k)
+    qi = np.repeat(np.arange(len(f_src)), take)
+    ti = idx[:, :take].ravel()
+    good = np.zeros((len(f_src), take), bool)
+    good[:, 0] = unique
     return (f_src.points[qi].astype(np.float64), f_dst.points[ti].astype(np.float64),
-            np.array(good, bool))
+            good.ravel())
 
 
 def ransac_rigid(src: np.ndarray, dst: np.ndarray, threshold: float, iterations: int,
@@ -197,14 +199,17 @@ def ransac_rigid(src: np.ndarray, dst: np.ndarray, threshold: float, iterations:
 def _refit(A: np.ndarray, src: np.ndarray, dst: np.ndarray, th2: float):
     """Least-squares rigid refit on the inliers until the inlier set settles."""
     mask = _inliers(A, src, dst, th2)
+    count = np.count_nonzero(mask)
     for _ in range(5):
-        if mask.sum() < 2:
+        if count < 2:
             break
-        A2 = rigid_from_points(src[mask], dst[mask])
+        sel = np.flatnonzero(mask)
+        A2 = rigid_from_points(src.take(sel, axis=0), dst.take(sel, axis=0))
         m2 = _inliers(A2, src, dst, th2)
-        if m2.sum() < mask.sum():
+        c2 = np.count_nonzero(m2)
+        if c2 < count:
             break
-        A, same, mask = A2, np.array_equal(m2, mask), m2
+        A, same, mask, count = A2, np.array_equal(m2, mask), m2, c2
         if same:
             break
     return A, mask
@@ -218,7 +223,7 @@ def _same(A: np.ndarray, B: np.ndarray, centre: np.ndarray, threshold: float) ->
 
 def _inliers(A: np.ndarray, src: np.ndarray, dst: np.ndarray, th2: float) -> np.ndarray:
     e = apply(A, src) - dst
-    return (e * e).sum(axis=1) < th2
+    return np.einsum('ij,ij->i', e, e) < th2
 
 
 def agreement(lv_dst: np.ndarray, lv_src: np.ndarray, A: np.ndarray,

@@ -28,10 +28,10 @@ import numpy as np
 from . import estimate as est
 from .config import MergeConfig
 from .features import Features
-from .grid import DEFAULT_FREE_THRESH, DEFAULT_OCC_THRESH, Grid, rescale
+from .grid import DEFAULT_FREE_THRESH, DEFAULT_OCC_THRESH, Grid, known_bbox, rescale
 from .merge import Lattice, Patch, composite, lattice_for, warp_patch
 from . import posegraph
-from .pairs import PairInput, compute_features, estimate_pair
+from .pairs import PairInput, compute_features, crop_known, estimate_pair
 from .transforms import image_to_pose, inverse, pose_distance, pose_to_image, se2, xyyaw
 
 
@@ -120,7 +120,8 @@ class MapMerger:
         self._maps: Dict[str, RobotMap] = {}
         self._version = 0
         self._reference: str = c.reference_robot
-        self._features: Dict[str, Tuple[tuple, Features]] = {}
+        self._features: Dict[str, Tuple[tuple, Features]] = {}   # in the crops' cells
+        self._crops: Dict[str, Tuple[tuple, np.ndarray, Tuple[int, int]]] = {}
         self._edges: Dict[Tuple[str, str], Edge] = {}
         self._tried: Dict[Tuple[str, str], Tuple[int, int]] = {}
         self._attempts: Dict[Tuple[str, str], est.PairEstimate] = {}
@@ -201,6 +202,8 @@ class MapMerger:
         """Forget a robot entirely: its map leaves the merge, its links are dropped."""
         with self._lock:
             self._maps.pop(name, None)
+            self._features.pop(name, None)
+            self._crops.pop(name, None)
             self._forget_locked(name)
 
     def reset(self) -> None:
@@ -340,12 +343,23 @@ class MapMerger:
                           % (key[0], key[1], 'verified' if ok else 'REJECTED', ag, ov))
         return events
 
+    def _crop(self, m: RobotMap) -> Tuple[np.ndarray, Tuple[int, int]]:
+        """The known part of a map's levels and its (col, row) offset, once per map version:
+        what features are computed on and what goes to the worker processes."""
+        key = (m.version, m.grid.resolution)
+        cached = self._crops.get(m.name)
+        if cached is None or cached[0] != key:
+            c = self.config
+            lv = m.grid.levels(c.free_thresh, c.occupied_thresh)
+            default = c.free_thresh == DEFAULT_FREE_THRESH and c.occupied_thresh == DEFAULT_OCC_THRESH
+            cached = self._crops[m.name] = (key,) + crop_known(lv, m.grid.known_box() if default else known_bbox(lv, 1))
+        return cached[1], cached[2]
+
     def _features_of(self, m: RobotMap) -> Features:
-        """(1) features of a map, computed once per map version."""
+        """(1) features of a map (in its crop's cells), computed once per map version."""
         cached = self._features.get(m.name)
         if cached is None or cached[0] != (m.version, m.grid.resolution):
-            lv = m.grid.levels(self.config.free_thresh, self.config.occupied_thresh)
-            self._features[m.name] = ((m.version, m.grid.resolution), compute_features(self.config, lv))
+            self._features[m.name] = ((m.version, m.grid.resolution), compute_features(self.config, self._crop(m)[0]))
         return self._features[m.name][1]
 
     def _features_all(self, maps: Dict[str, RobotMap]) -> None:
@@ -355,7 +369,7 @@ class MapMerger:
         if not todo:
             return
         c = self.config
-        levels = [m.grid.levels(c.free_thresh, c.occupied_thresh) for m in todo]
+        levels = [self._crop(m)[0] for m in todo]
         for m, f in zip(todo, self._map(compute_features, [c] * len(todo), levels)):
             self._features[m.name] = ((m.version, m.grid.resolution), f)
 
@@ -377,8 +391,7 @@ class MapMerger:
             return self._map(estimate_pair, [c] * len(todo), [inputs[a] for a, _ in todo],
                              [inputs[b] for _, b in todo], [seeds[ab] for ab in todo])
         from concurrent.futures import as_completed
-        waiting = {pool.submit(compute_features, c, m.grid.levels(c.free_thresh, c.occupied_thresh)): m
-                   for m in stale}
+        waiting = {pool.submit(compute_features, c, self._crop(m)[0]): m for m in stale}
         ready = set(maps) - {m.name for m in stale}
         queued: Dict[Tuple[str, str], object] = {}
         inputs: Dict[str, PairInput] = {}
@@ -464,9 +477,9 @@ class MapMerger:
         return ag
 
     def _input(self, m: RobotMap) -> PairInput:
-        c = self.config
-        return PairInput(m.name, m.version, m.grid.levels(c.free_thresh, c.occupied_thresh),
-                         m.grid.resolution, m.grid.origin, self._features_of(m), self._uid)
+        levels, offset = self._crop(m)
+        return PairInput(m.name, m.version, levels, m.grid.resolution, m.grid.origin,
+                         self._features_of(m), self._uid, offset)
 
     def estimate_grids(self, pa: RobotMap, ch: RobotMap, seed: int = 0) -> est.PairEstimate:
         """Steps (2)-(4) for one pair, here in this process: cells of ``ch`` -> cells of ``pa``."""

@@ -22,21 +22,41 @@ from .transforms import apply, image_to_pose, inverse, pose_distance, se2, turn_
 
 @dataclass
 class PairInput:
-    """One robot's side of a pair: its working-resolution grid levels and features."""
+    """One robot's side of a pair: the known part of its working-resolution grid's levels and
+    their features. ``levels`` is a crop: its cell (c, r) is cell (c + offset[0], r + offset[1])
+    of the grid whose ``origin`` is given. (A gmapping canvas is mostly unknown; the crop is
+    what is worth sending to a worker process, once per pair.)"""
 
     name: str
     version: int
     levels: np.ndarray            # uint8 levels (grid.UNKNOWN/FREE/OCCUPIED), OccupancyGrid order
     resolution: float             # metres per cell
-    origin: Tuple[float, float, float]
-    features: Features
+    origin: Tuple[float, float, float]   # of the whole grid
+    features: Features            # positions in the crop's cells
     owner: str = ''               # the merger it comes from: (owner, name, version) is unique
+    offset: Tuple[int, int] = (0, 0)     # (col, row) of the crop's cell (0, 0) in the grid
 
 
-# Per-process caches: a worker sees the same maps again and again.
+def crop_known(levels: np.ndarray, box: Optional[Tuple[int, int, int, int]]) -> Tuple[np.ndarray, Tuple[int, int]]:
+    """(levels of ``box`` (rows, cols, half-open; the known cells' box), its (col, row) offset);
+    the whole grid when nothing is known."""
+    if box is None:
+        return levels, (0, 0)
+    r0, r1, c0, c1 = box
+    return np.ascontiguousarray(levels[r0:r1, c0:c1]), (c0, r0)
+
+
+def _grid_cells(A: np.ndarray, pa: PairInput, ch: PairInput) -> np.ndarray:
+    """A transform between the crops' cells as one between the grids' cells."""
+    to_pa = np.array([[1.0, 0.0, pa.offset[0]], [0.0, 1.0, pa.offset[1]], [0.0, 0.0, 1.0]])
+    from_ch = np.array([[1.0, 0.0, -ch.offset[0]], [0.0, 1.0, -ch.offset[1]], [0.0, 0.0, 1.0]])
+    return to_pa @ A @ from_ch
+
+
+# Per-process caches: a worker sees the same maps again and again (a map takes part in N-1
+# pairs), so what is derived from a map is derived once per map version in each process.
 _EXTRACTORS: Dict[tuple, FeatureExtractor] = {}
-_WALLS: Dict[tuple, Tuple[WallField, np.ndarray]] = {}
-_KNOWN: Dict[tuple, tuple] = {}
+_DERIVED: Dict[tuple, object] = {}
 
 
 def compute_features(config: MergeConfig, levels: np.ndarray) -> Features:
@@ -48,26 +68,33 @@ def compute_features(config: MergeConfig, levels: np.ndarray) -> Features:
     return fe(levels)
 
 
-def _walls(p: PairInput) -> Tuple[WallField, np.ndarray]:
-    key = (p.owner, p.name, p.version, p.resolution)
-    w = _WALLS.get(key)
-    if w is None:
-        if len(_WALLS) > 64:
-            _WALLS.clear()
-        w = _WALLS[key] = (WallField(p.levels), occupied_points(p.levels))
-    return w
+def _derived(what: str, p: PairInput, make):
+    """``make(p)``, cached per (merger, robot, map version, resolution) in this process."""
+    key = (what, p.owner, p.name, p.version, p.resolution)
+    v = _DERIVED.get(key)
+    if v is None:
+        if len(_DERIVED) > 256:
+            _DERIVED.clear()
+        v = _DERIVED[key] = make(p)
+    return v
 
 
 def _known(p: PairInput) -> tuple:
-    """(known box, known centre) of a map, once per map version in this process: a map takes
-    part in N-1 pairs."""
-    key = (p.owner, p.name, p.version, p.resolution)
-    k = _KNOWN.get(key)
-    if k is None:
-        if len(_KNOWN) > 64:
-            _KNOWN.clear()
-        k = _KNOWN[key] = (known_bbox(p.levels), _known_centre(p.levels))
-    return k
+    """(known box, known centre) of a map."""
+    def make(p):
+        box = known_bbox(p.levels)
+        return box, _known_centre(p.levels, box)
+    return _derived('known', p, make)
+
+
+def _field(p: PairInput) -> WallField:
+    """Nearest walls of a map (needed where it is a pair's parent only)."""
+    return _derived('field', p, lambda p: WallField(p.levels))
+
+
+def _wall_points(p: PairInput) -> np.ndarray:
+    """Wall cells of a map (ICP source points, where it is a pair's child)."""
+    return _derived('points', p, lambda p: occupied_points(p.levels, _known(p)[0]))
 
 
 def contradicts_prior(config: MergeConfig, pa: PairInput, ch: PairInput, A: np.ndarray) -> str:
@@ -77,7 +104,7 @@ def contradicts_prior(config: MergeConfig, pa: PairInput, ch: PairInput, A: np.n
     priors = config.initial_poses
     if pa.name not in priors or ch.name not in priors:
         return ''
-    T = image_to_pose(A, pa.resolution, pa.origin, ch.resolution, ch.origin)
+    T = image_to_pose(_grid_cells(A, pa, ch), pa.resolution, pa.origin, ch.resolution, ch.origin)
     P = inverse(se2(*priors[pa.name])) @ se2(*priors[ch.name])
     d, a = pose_distance(T, P)
     tol_d, tol_a = config.initial_pose_tolerance
@@ -89,8 +116,8 @@ def contradicts_prior(config: MergeConfig, pa: PairInput, ch: PairInput, A: np.n
 
 def refined(config: MergeConfig, pa: PairInput, ch: PairInput, A: np.ndarray) -> np.ndarray:
     """ICP polish of ``A`` on the walls; it may only polish, never move the estimate away."""
-    field_a, _ = _walls(pa)
-    _, pts_b = _walls(ch)
+    field_a = _field(pa)
+    pts_b = _wall_points(ch)
     A2 = refine(field_a, pts_b, A, max_distance=config.ransac_threshold)
     if A2 is None:
         return A
@@ -107,10 +134,18 @@ AMBIGUITY_APART = (0.5, math.radians(5.0))
 
 
 def estimate_pair(config: MergeConfig, pa: PairInput, ch: PairInput, seed: int = 0) -> est.PairEstimate:
-    """Cells of ``ch`` -> cells of ``pa``: (2) match, (3) rigid RANSAC + inlier ratio,
-    (4) verification on the grids and ICP refinement. The best-agreeing accepted hypothesis
-    is returned, or the best rejected one with its reason (also when a clearly different
-    hypothesis verifies nearly as well: ambiguous, see :func:`_check_ambiguity`)."""
+    """Cells of ``ch``'s grid -> cells of ``pa``'s grid: (2) match, (3) rigid RANSAC + inlier
+    ratio, (4) verification on the grids and ICP refinement. The best-agreeing accepted
+    hypothesis is returned, or the best rejected one with its reason (also when a clearly
+    different hypothesis verifies nearly as well: ambiguous, see :func:`_check_ambiguity`)."""
+    r = _estimate_crops(config, pa, ch, seed)
+    if r.A is not None:
+        r.A = _grid_cells(r.A, pa, ch)
+    return r
+
+
+def _estimate_crops(config: MergeConfig, pa: PairInput, ch: PairInput, seed: int) -> est.PairEstimate:
+    """:func:`estimate_pair` between the crops' cells."""
     c = config
     src, dst, unique = est.match(ch.features, pa.features, c.match_candidates, c.match_ratio)
     r = est.PairEstimate(None, matches=int(unique.sum()))
@@ -175,10 +210,14 @@ def estimate_pair(config: MergeConfig, pa: PairInput, ch: PairInput, seed: int =
     return best
 
 
-def _known_centre(levels: np.ndarray) -> Optional[np.ndarray]:
-    """(1, 2) centre (col, row) of a grid's known cells; None when it has none."""
-    rr, cc = np.nonzero(levels > 0)
-    return np.array([[cc.mean(), rr.mean()]]) if rr.size else None
+def _known_centre(levels: np.ndarray, box) -> Optional[np.ndarray]:
+    """(1, 2) centre (col, row) of a grid's known cells (all inside ``box``, the grid's
+    :func:`known_bbox`); None when it has none."""
+    if box is None:
+        return None
+    r0, r1, c0, c1 = box
+    rr, cc = np.nonzero(levels[r0:r1, c0:c1])
+    return np.array([[cc.mean() + c0, rr.mean() + r0]]) if rr.size else None
 
 
 def _apart(A: np.ndarray, B: np.ndarray, centre: np.ndarray, resolution: float) -> Tuple[float, float]:

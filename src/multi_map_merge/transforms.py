@@ -87,10 +87,15 @@ def rigid_from_points(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
     """Least-squares rigid 3x3 (rotation + translation, det +1) with dst ~ R src + t.
 
     In 2D the best rotation has a closed form (the angle of the cross-covariance), no SVD:
-    this runs inside RANSAC and ICP loops hundreds of times per pair."""
-    n = float(src.shape[0])
-    ms, md = src.sum(axis=0) / n, dst.sum(axis=0) / n
-    K = (src - ms).T @ (dst - md)          # [[sxx, sxy], [syx, syy]]
+    this runs inside RANSAC and ICP loops hundreds of times per pair. The sums are BLAS
+    products: numpy's column sums of an (N, 2) array (``sum(axis=0)``) cost several times
+    more, and this is called thousands of times per cycle."""
+    src, dst = np.asarray(src, np.float64), np.asarray(dst, np.float64)
+    n = src.shape[0]
+    ones = np.ones(n)
+    ss, sd = ones @ src, ones @ dst
+    K = src.T @ dst - np.outer(ss, sd) / n   # [[sxx, sxy], [syx, syy]], about the means
+    ms, md = ss / n, sd / n
     th = math.atan2(K[0, 1] - K[1, 0], K[0, 0] + K[1, 1])
     c, s = math.cos(th), math.sin(th)
     return np.array([[c, -s, md[0] - (c * ms[0] - s * ms[1])],
