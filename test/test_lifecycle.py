@@ -16,6 +16,7 @@ import tf2_ros
 import yaml
 from map_msgs.msg import OccupancyGridUpdate
 from rosgraph_msgs.msg import Log
+from tf2_msgs.msg import TFMessage
 from rospy.numpy_msg import numpy_msg
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
@@ -129,13 +130,24 @@ class TestLifecycle(unittest.TestCase):
                                  '_merged_map_frame:=map_b', '_min_matches:=100000000',
                                  '_estimation_rate:=2.0'],
                                 start_new_session=True)
+        # Both mergers now broadcast a parent of tb3_1/map (map, map_b); tf2 keeps one parent
+        # per frame at a time, so a shared buffer flips between them. The second merger's own
+        # transforms go into a buffer of their own, and are looked up there.
+        own = tf2_ros.Buffer(rospy.Duration(30.0))
+
+        def take(msg):
+            for t in msg.transforms:
+                if t.header.frame_id == 'map_b':
+                    own.set_transform(t, 'map_merge_b')
+        sub = rospy.Subscriber('/tf', TFMessage, take, queue_size=100)
         try:
-            T = lookup(self.buf, 'map_b', 'tb3_1/map', 30.0)
+            T = lookup(own, 'map_b', 'tb3_1/map', 30.0)
             self.assertIsNotNone(T, 'the restarted merger did not restore its saved link')
             d, a = pose_distance(T, self.T_true)
             self.assertLess(d, 0.1)
             self.assertLess(a, math.radians(1))
         finally:
+            sub.unregister()
             os.killpg(proc.pid, signal.SIGINT)
             proc.wait(10)
             if os.path.exists(path):

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from .grid import known_bbox, to_image
+from .grid import UNKNOWN, known_bbox, to_image
 
 _MARGIN = 32  # cells of unknown around the known box: AKAZE drops keypoints whose
 # descriptor window leaves the image, so a tight crop loses the walls at the border (measured:
@@ -71,17 +71,19 @@ class FeatureExtractor:
             return empty_features()
         r0, r1, c0, c1 = box
         h, w = levels.shape
-        a0, a1, b0, b1 = max(0, r0 - _MARGIN), min(h, r1 + _MARGIN), max(0, c0 - _MARGIN), min(w, c1 + _MARGIN)
-        # where the grid itself ends before the margin, pad with unknown
+        # The window described: the known box and a margin, padded with unknown where the
+        # grid ends first. It is set by the known cells alone, not by the array's extent, so
+        # a map's crop and its whole canvas give the same features (and pool alike).
+        A0, A1, B0, B1 = r0 - _MARGIN, r1 + _MARGIN, c0 - _MARGIN, c1 + _MARGIN
+        a0, a1, b0, b1 = max(0, A0), min(h, A1), max(0, B0), min(w, B1)
+        lv = levels[a0:a1, b0:b1]
+        if (a0, a1, b0, b1) != (A0, A1, B0, B1):
+            lv = cv2.copyMakeBorder(lv, a0 - A0, A1 - a1, b0 - B0, B1 - b1, cv2.BORDER_CONSTANT, value=UNKNOWN)
         f = 1
         if self._cells and (r1 - r0) * (c1 - c0) > self._cells:
             f = int(np.ceil(np.sqrt((r1 - r0) * (c1 - c0) / float(self._cells))))
-        lv = levels[a0:a1, b0:b1]
-        if f > 1:
             lv = _maxpool(lv, f)
-        pad = [(a0 - (r0 - _MARGIN)) // f, -(-((r1 + _MARGIN) - a1) // f),
-               (b0 - (c0 - _MARGIN)) // f, -(-((c1 + _MARGIN) - b1) // f)]
-        img = cv2.copyMakeBorder(to_image(lv), *pad, cv2.BORDER_CONSTANT, value=127)
+        img = to_image(lv)
         kps, desc = self._akaze.detectAndCompute(img, None)
         if desc is None or not kps:
             return empty_features()
@@ -90,9 +92,8 @@ class FeatureExtractor:
             kps = [kps[i] for i in strongest]
             desc = desc[strongest]
         pts = np.array([kp.pt for kp in kps], np.float32)
-        pts -= np.array([pad[2], pad[0]], np.float32)       # into the pooled crop
         pts = (pts + 0.5) * f - 0.5                          # pooled pixel -> cell centres
-        pts += np.array([b0, a0], np.float32)
+        pts += np.array([B0, A0], np.float32)                # window -> grid cells
         return Features(pts, desc, int(np.count_nonzero(levels)))
 
 
