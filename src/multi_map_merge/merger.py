@@ -351,9 +351,16 @@ class MapMerger:
         if cached is None or cached[0] != key:
             c = self.config
             lv = m.grid.levels(c.free_thresh, c.occupied_thresh)
-            default = c.free_thresh == DEFAULT_FREE_THRESH and c.occupied_thresh == DEFAULT_OCC_THRESH
-            cached = self._crops[m.name] = (key,) + crop_known(lv, m.grid.known_box() if default else known_bbox(lv, 1))
+            cached = self._crops[m.name] = (key,) + crop_known(lv, self._known_box(m))
         return cached[1], cached[2]
+
+    def _known_box(self, m: RobotMap) -> Optional[Tuple[int, int, int, int]]:
+        """Known cells' box of a map's working grid, grown by a cell (cached on the grid for the
+        default thresholds)."""
+        c = self.config
+        if c.free_thresh == DEFAULT_FREE_THRESH and c.occupied_thresh == DEFAULT_OCC_THRESH:
+            return m.grid.known_box()
+        return known_bbox(m.grid.levels(c.free_thresh, c.occupied_thresh), 1)
 
     def _features_of(self, m: RobotMap) -> Features:
         """(1) features of a map (in its crop's cells), computed once per map version."""
@@ -570,9 +577,8 @@ class MapMerger:
         if cached is not None and cached[0] == key:
             return cached[1]
         c = self.config
-        default = c.free_thresh == DEFAULT_FREE_THRESH and c.occupied_thresh == DEFAULT_OCC_THRESH
         p = warp_patch(m.grid.levels(c.free_thresh, c.occupied_thresh), m.grid.resolution,
-                       m.grid.origin, T, lattice, c.max_cells, m.grid.known_box() if default else None)
+                       m.grid.origin, T, lattice, c.max_cells, self._known_box(m))
         self._patches[m.name] = (key, p)
         return p
 

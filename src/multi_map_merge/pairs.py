@@ -48,9 +48,7 @@ def crop_known(levels: np.ndarray, box: Optional[Tuple[int, int, int, int]]) -> 
 
 def _grid_cells(A: np.ndarray, pa: PairInput, ch: PairInput) -> np.ndarray:
     """A transform between the crops' cells as one between the grids' cells."""
-    to_pa = np.array([[1.0, 0.0, pa.offset[0]], [0.0, 1.0, pa.offset[1]], [0.0, 0.0, 1.0]])
-    from_ch = np.array([[1.0, 0.0, -ch.offset[0]], [0.0, 1.0, -ch.offset[1]], [0.0, 0.0, 1.0]])
-    return to_pa @ A @ from_ch
+    return se2(pa.offset[0], pa.offset[1], 0.0) @ A @ se2(-ch.offset[0], -ch.offset[1], 0.0)
 
 
 # Per-process caches: a worker sees the same maps again and again (a map takes part in N-1
