@@ -26,7 +26,7 @@ import numpy as np
 
 from .features import Features
 from .grid import FREE, OCCUPIED, known_bbox
-from .transforms import apply, rigid_from_points, turn_between, wrap_angle
+from .transforms import apply, rigid_from_points, se2, turn_between, wrap_angle
 
 
 @dataclass
@@ -251,7 +251,7 @@ def agreement(lv_dst: np.ndarray, lv_src: np.ndarray, A: np.ndarray,
     c1 = min(box_d[3] + m, int(math.ceil(corners[:, 0].max())) + 1 + m, lv_dst.shape[1])
     if r1 <= r0 or c1 <= c0:
         return 0.0, 0
-    shift = np.array([[1, 0, -c0], [0, 1, -r0], [0, 0, 1.0]])
+    shift = se2(-c0, -r0, 0.0)
     M = (shift @ A)[:2]
     ref = lv_dst[r0:r1, c0:c1]
     warped = cv2.warpAffine(lv_src, M, (c1 - c0, r1 - r0), flags=cv2.INTER_NEAREST,

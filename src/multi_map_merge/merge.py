@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 
 from .grid import Grid, known_bbox, levels_to_values
-from .transforms import apply, cell_to_metric, inverse
+from .transforms import apply, cell_to_metric, inverse, se2
 
 
 @dataclass
@@ -85,7 +85,7 @@ def warp_patch(levels: np.ndarray, resolution: float, origin, T_merged_k: np.nda
     W_patch = cell_to_metric(res, (lattice.x0 + i0 * res, lattice.y0 + j0 * res, 0.0))
     M = inverse(W_k) @ inverse(T_merged_k) @ W_patch   # patch cells -> cells of k
     sub = np.ascontiguousarray(levels[r0:r1, c0:c1])
-    M = np.array([[1, 0, -c0], [0, 1, -r0], [0, 0, 1.0]]) @ M
+    M = se2(-c0, -r0, 0.0) @ M
     out = cv2.warpAffine(sub, M[:2], (w, h), flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP,
                          borderMode=cv2.BORDER_CONSTANT, borderValue=0)
     return Patch(i0, j0, out)

@@ -16,7 +16,7 @@ from . import estimate as est
 from .config import MergeConfig
 from .features import FeatureExtractor, Features
 from .grid import known_bbox
-from .refine import WallField, occupied_points, refine
+from .refine import WALL_FIELD_MARGIN, WallField, occupied_points, refine
 from .transforms import apply, image_to_pose, inverse, pose_distance, se2, turn_between
 
 
@@ -37,12 +37,20 @@ class PairInput:
     offset: Tuple[int, int] = (0, 0)     # (col, row) of the crop's cell (0, 0) in the grid
 
 
+# Unknown cells kept around the known box in a crop: the wall field looks this far beyond the
+# known cells (a wall point landing just outside the parent's map still finds its wall), so a
+# pair estimated on crops is the pair estimated on the whole grids.
+CROP_MARGIN = WALL_FIELD_MARGIN
+
+
 def crop_known(levels: np.ndarray, box: Optional[Tuple[int, int, int, int]]) -> Tuple[np.ndarray, Tuple[int, int]]:
-    """(levels of ``box`` (rows, cols, half-open; the known cells' box), its (col, row) offset);
-    the whole grid when nothing is known."""
+    """(levels of ``box`` (rows, cols, half-open; the known cells' box) grown by CROP_MARGIN
+    within the grid, its (col, row) offset); the whole grid when nothing is known."""
     if box is None:
         return levels, (0, 0)
-    r0, r1, c0, c1 = box
+    h, w = levels.shape
+    r0, r1 = max(0, box[0] - CROP_MARGIN), min(h, box[1] + CROP_MARGIN)
+    c0, c1 = max(0, box[2] - CROP_MARGIN), min(w, box[3] + CROP_MARGIN)
     return np.ascontiguousarray(levels[r0:r1, c0:c1]), (c0, r0)
 
 

@@ -17,10 +17,13 @@ from .grid import OCCUPIED, known_bbox
 from .transforms import apply, rigid_from_points
 
 
+WALL_FIELD_MARGIN = 4   # cells beyond the known box where nearest walls are still looked up
+
+
 class WallField:
     """Nearest occupied cell of a grid for any cell of its known box (built once per grid)."""
 
-    def __init__(self, levels: np.ndarray, margin: int = 4):
+    def __init__(self, levels: np.ndarray, margin: int = WALL_FIELD_MARGIN):
         box = known_bbox(levels, margin)
         self.ok = box is not None
         if not self.ok:
