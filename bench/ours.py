@@ -13,10 +13,19 @@ SPEC: {"paths": [map yaml...], "truth": [3x3 pose of map k in map 0's frame] or 
                 in the merger's worker processes as the node runs it); median of R such cycles,
                 each of a new merger (cold_first_ms: the process's first)
   warm_ms       estimate() again with unchanged maps
-  compose_ms    compose() of that merger for the first time (every map warped)
+  ingest_ms     a map's classification as it arrives (update_map: levels, known box and the
+                values compositing warps), per map; not part of compose_ms, as m-explore's feed()
+                is not part of its compositing
+  compose_first_ms  compose() of that merger for the first time (every map warped), right
+                after its estimation, whose work ran in the worker processes while this one
+                waited: its caches and OpenCV's threads have gone cold (median of R)
+  compose_ms    compose() with every map warped again, COMPOSE_REPS times back to back as
+                m-explore's driver times its composeGrids(), median: how m-explore's figure
+                is measured
   publish_ms    ros_adapter.grid_to_msg (numpy_msg OccupancyGrid) + msg.serialize(BytesIO)
   rss_mb        peak RSS: this process's ru_maxrss plus each worker process's VmHWM
-and the placements, scored against ``truth`` when given.
+and the placements (``poses``: x, y, yaw of each placed map's frame in map 0's frame, metres and
+radians; m-explore composites the same output on them), scored against ``truth`` when given.
 """
 import io
 import json
@@ -29,6 +38,9 @@ import time
 import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), 'src'))
+
+
+COMPOSE_REPS = 9   # back-to-back compositing runs, both sides (peer.compose_given too)
 
 
 def worker_peaks_mb():
@@ -91,6 +103,16 @@ def main():
             fe(lv)
             feat.append(time.perf_counter() - t)
 
+    # (1b) ingestion: what update_map does with a map as it arrives, on a fresh copy each time
+    from multi_map_merge.grid import Grid
+    ingest = []
+    for g in grids:
+        for _ in range(reps):
+            data = g.data.copy()
+            t = time.perf_counter()
+            Grid(data, g.resolution, g.origin).known_values()
+            ingest.append(time.perf_counter() - t)
+
     # (2)-(4) one pair in this process: features cached first, so only the pair is timed
     m0 = MapMerger(cfg)
     rms = [RobotMap('r%02d' % k, g, k + 1, 0.0).at(g.resolution) for k, g in enumerate(grids)]
@@ -139,18 +161,28 @@ def main():
         msg.serialize(buf)
         pub.append(time.perf_counter() - t)
 
+    comp_b2b = []
+    for _ in range(COMPOSE_REPS):
+        m._patches.clear()     # every map warped again, as m-explore's composeGrids() does
+        m._merged = None
+        t = time.perf_counter()
+        m.compose()
+        comp_b2b.append(time.perf_counter() - t)
+
     P = m.placements()
     errs = score(P, truth, len(grids))
+    from multi_map_merge.transforms import xyyaw
+    poses = {k: list(xyyaw(P['r%02d' % k].T)) for k in range(len(grids)) if 'r%02d' % k in P}
     print(json.dumps({
         'features_ms': med(feat), 'pair_ms': med(pair), 'cold_ms': med(cold), 'warm_ms': med(warm),
         'cold_first_ms': cold[0] * 1000.0, 'pool_start_ms': pool_start,
-        'compose_ms': med(comp), 'compose_again_ms': med(comp_again), 'publish_ms': med(pub),
+        'ingest_ms': med(ingest), 'compose_first_ms': med(comp), 'compose_ms': med(comp_b2b), 'compose_again_ms': med(comp_again), 'publish_ms': med(pub),
         'published_bytes': buf.tell(),
         'rss_mb': resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0 + worker_peaks_mb(),
         'rss_self_mb': resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
         'workers': len(mm._POOL._processes) if mm._POOL is not None else 1,
         'robots': len(grids), 'placed': len(P) - 1,
-        'errors': errs,
+        'errors': errs, 'poses': poses, 'compose_reps': COMPOSE_REPS,
         'max_err_m': max([e[0] for e in errs.values()]) if errs else None,
         'max_err_deg': max([e[1] for e in errs.values()]) if errs else None,
         'merged_cells': int(merged.width * merged.height),

@@ -6,7 +6,11 @@ Its tool prints only the median estimation and compositing times of a whole run,
   per pair          = estimation of a run on the two maps minus both maps' feature times
                       (matching + bundle adjustment of one pair);
   peak RSS          = ru_maxrss of the mexplore_merge process itself (wait4 on it, through a
-                      wrapper placed in a private PEER_WS, so the Python front end is not counted).
+                      wrapper placed in a private PEER_WS, so the Python front end is not counted);
+  compositing of the same output
+                    = its composeGrids() on the poses our merger found (bench/mexplore_compose.cpp,
+                      our driver of its library, built here against the peer's build): where its
+                      own estimate is wrong, its compositing time is that of another output.
 Nothing of m-explore is part of the project; when ../shared is absent every call here says so.
 """
 from __future__ import annotations
@@ -49,6 +53,21 @@ def available():
     return True, ''
 
 
+def _build_driver(exe):
+    """Compile bench/mexplore_compose.cpp against the peer's built library, as the peer's
+    build.sh compiles its own driver."""
+    ws = PEER_WS
+    src = os.path.join(os.path.dirname(os.path.abspath(__file__)), 'mexplore_compose.cpp')
+    libs = subprocess.run(['pkg-config', '--libs', 'opencv4'], capture_output=True, text=True,
+                          env=ENV).stdout.split()
+    cmd = (['g++', '-O2', '-std=c++14', '-o', exe, src, '-I', os.path.join(ws, 'src', 'map_merge', 'include'),
+            '-I', '/usr/include/opencv4', os.path.join(ws, 'devel', 'lib', 'libcombine_grids.a')] + libs +
+           ['-lroscpp', '-lrosconsole', '-lroscpp_serialization', '-lrostime', '-lcpp_common', '-lboost_system'])
+    r = subprocess.run(cmd, capture_output=True, text=True, env=ENV)
+    if r.returncode != 0:
+        raise RuntimeError('cannot build %s: %s' % (exe, r.stderr[-500:]))
+
+
 def live_node():
     p = os.path.join(PEER_WS, 'devel', 'lib', 'multirobot_map_merge', 'map_merge')
     return p if os.path.exists(p) else None
@@ -85,6 +104,35 @@ class Peer:
         rep = yaml.safe_load(open(os.path.join(out, 'T.yaml')))
         rss = max(int(x) for x in open(self.rss_file).read().split()) / 1024.0
         return timing, rep, rss, wall
+
+    def compose_given(self, paths, poses, reps, runs):
+        """m-explore's compositing of the maps placed at ``poses`` ({index: [x, y, yaw]}: pose
+        of map k's frame in map 0's frame, metres and radians; map 0 is the reference), in
+        ``runs`` fresh processes of ``reps`` back-to-back compositions each, as ours is measured:
+        {'compose_ms': median over the runs of each run's median, 'runs_ms', 'cells', 'known'}
+        of its merged grid."""
+        import yaml
+        exe = os.path.join(self.root, 'mexplore_compose')
+        if not os.path.exists(exe):
+            _build_driver(exe)
+        args = [exe, str(reps)]
+        for k, path in enumerate(paths):
+            if str(k) not in poses:
+                continue
+            m = yaml.safe_load(open(path))
+            img = m['image'] if os.path.isabs(m['image']) else os.path.join(os.path.dirname(path), m['image'])
+            args += [img, repr(float(m['resolution'])), repr(float(m['origin'][0])),
+                     repr(float(m['origin'][1]))] + [repr(float(v)) for v in poses[str(k)]]
+        got = []
+        for _ in range(runs):
+            r = subprocess.run(args, capture_output=True, text=True, env=ENV)
+            if r.returncode != 0:
+                raise RuntimeError('mexplore_compose failed: %s' % r.stderr[-300:])
+            got.append(json.loads(r.stdout.strip().splitlines()[-1]))
+        out = dict(got[0])
+        out['runs_ms'] = [g['compose_ms'] for g in got]
+        out['compose_ms'] = float(np.median(out['runs_ms']))
+        return out
 
     def measure(self, paths, truth, reps, pairs, full=True):
         """m-explore's figures for one configuration (see module docstring)."""

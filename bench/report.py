@@ -58,22 +58,26 @@ def rows_table(rows, peer_note):
     if peer_note:
         out.append('NOTE: %s' % peer_note)
     cols = ('input', 'cells', 'N', 'feat/map ms', 'pair ms', 'est cold ms', 'est warm ms',
-            'compose+publ ms')
-    h = '%-16s %5s %3s | %-21s | %-21s | %-24s | %-18s | %-26s' % cols
-    out += ['', 'TIME  (each cell: ours / m-explore = ratio; ratio < 1: we are faster)', h, '-' * len(h)]
+            'compose+publ ms', 'same output')
+    h = '%-16s %5s %3s | %-21s | %-21s | %-24s | %-18s | %-26s | %-14s' % cols
+    out += ['', 'TIME  (each cell: ours / m-explore = ratio; ratio < 1: we are faster. compose: '
+            'm-explore\'s compositing of its own merge; same output: its compositing of the maps '
+            'at our poses, ms = ratio)', h, '-' * len(h)]
     for r in rows:
         o, p = r['ours'], r['peer']
 
         def trip(a, b, fa='%.1f', fb='%.1f'):
             return '%s / %s = %s' % (_f(a, fa), _f(b, fb), _f(_r(a, b), '%.2fx'))
         cp = o['compose_ms'] + o['publish_ms']
-        out.append('%-16s %5s %3d | %-21s | %-21s | %-24s | %-18s | %-26s' % (
+        same = (p.get('same_output') or {}).get('compose_ms')
+        out.append('%-16s %5s %3d | %-21s | %-21s | %-24s | %-18s | %-26s | %-14s' % (
             r['name'], '%dk' % (o['map_cells'] // 1000), r['robots'],
             trip(o['features_ms'], p.get('features_ms')), trip(o['pair_ms'], p.get('pair_ms'), '%.0f', '%.0f'),
             trip(o['cold_ms'], p.get('estimate_ms'), '%.0f', '%.0f'),
             trip(o['warm_ms'], p.get('estimate_ms'), '%.2f', '%.0f'),
             '%.1f+%.1f / %s = %s' % (o['compose_ms'], o['publish_ms'], _f(p.get('compose_ms'), '%.1f'),
-                                     _f(_r(cp, p.get('compose_ms')), '%.2fx'))))
+                                     _f(_r(cp, p.get('compose_ms')), '%.2fx')),
+            '%s = %s' % (_f(same, '%.1f'), _f(_r(cp, same), '%.2fx'))))
     h = '%-16s %3s | %-30s | %-16s | %-38s' % ('input', 'N', 'peak RSS MB (ours: +workers)', 'placed (ok)',
                                                 'max error: ours | m-explore')
     out += ['', 'MEMORY AND CORRECTNESS  (placed: robots put in the merged frame besides the reference; '
@@ -118,6 +122,9 @@ def plot(rows, path):
     series(ax[0], sweep, n, 'ours', 'warm_ms', 'd-', 'ours: estimation, warm')
     series(ax[0], sweep, n, 'ours', 'compose_ms', 's-', 'ours: compositing')
     series(ax[0], sweep, n, 'peer', 'compose_ms', 's--', 'm-explore: compositing')
+    pts = [(n(r), r['peer']['same_output']['compose_ms']) for r in sweep if r['peer'].get('same_output')]
+    if pts:
+        ax[0].plot(*zip(*pts), 's:', label='m-explore: compositing at our poses')
     ax[0].set_xscale('log', base=2)
     ax[0].set_xlabel('robots (intel-sized maps, all overlapping)')
     ax[0].set_title('time against robot count')

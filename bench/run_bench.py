@@ -91,6 +91,8 @@ def main():
             full = n <= a.peer_max_robots
             p = pr.measure(paths, truth, cycles, [tuple(x) for x in pairs], full=full)
             p['reps'] = cycles
+            if ours.get('poses'):
+                p['same_output'] = pr.compose_given(paths, ours['poses'], ours['compose_reps'], reps)
             if not full:
                 p['skipped'] = 'full run skipped above %d robots (m-explore x16 takes ~50 s)' % a.peer_max_robots
             p['bench_s'] = time.time() - t0

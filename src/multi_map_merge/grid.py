@@ -59,6 +59,7 @@ class Grid:
     stamp: float = 0.0
     _levels: Optional[np.ndarray] = field(default=None, repr=False, compare=False)
     _box: Optional[tuple] = field(default=None, repr=False, compare=False)
+    _known: Optional[tuple] = field(default=None, repr=False, compare=False)
 
     @property
     def height(self) -> int:
@@ -87,6 +88,14 @@ class Grid:
             self._box = (known_bbox(self.levels(), 1),)
         return self._box[0]
 
+    def known_values(self) -> Optional[Tuple[Tuple[int, int, int, int], np.ndarray]]:
+        """(:meth:`known_box`, :func:`known_values` in it) of the default levels; None when
+        nothing is known (cached)."""
+        if self._known is None:
+            box = self.known_box()
+            self._known = (None if box is None else (box, known_values(self.levels(), box)),)
+        return self._known[0]
+
 
 def classify(data: np.ndarray, free_thresh: float = DEFAULT_FREE_THRESH,
              occ_thresh: float = DEFAULT_OCC_THRESH) -> np.ndarray:
@@ -105,7 +114,16 @@ _VALUES_LUT[:3] = np.array([-1, 0, 100], np.int8).view(np.uint8)
 def levels_to_values(levels: np.ndarray) -> np.ndarray:
     """Levels -> OccupancyGrid int8 values: -1 unknown, 0 free, 100 occupied."""
     import cv2   # cv2.LUT is about 10x faster than numpy fancy indexing on big grids
-    return cv2.LUT(np.ascontiguousarray(levels, np.uint8), _VALUES_LUT).view(np.int8)
+    # A slice of a grid goes in as it is (OpenCV takes its row stride): no copy first.
+    lv = levels if levels.dtype == np.uint8 and levels.strides[-1] == 1 else np.ascontiguousarray(levels, np.uint8)
+    return cv2.LUT(lv, _VALUES_LUT).view(np.int8)
+
+
+def known_values(levels: np.ndarray, box: Tuple[int, int, int, int]) -> np.ndarray:
+    """OccupancyGrid values (contiguous int8: -1 unknown, 0 free, 100 occupied) of the levels in
+    ``box`` (rows r0:r1, cols c0:c1, half-open): the part of a map that compositing warps."""
+    r0, r1, c0, c1 = box
+    return levels_to_values(levels[r0:r1, c0:c1])
 
 
 def to_image(levels: np.ndarray) -> np.ndarray:

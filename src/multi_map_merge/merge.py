@@ -2,8 +2,9 @@
 
 The merged canvas is axis-aligned in the merged frame on the reference map's cell lattice, so
 the reference is copied without resampling. It grows to cover every merged map (not only the
-reference). Where maps overlap, Occupied > Free > Unknown: the levels are ordered so that this
-is an element-wise maximum.
+reference). Where maps overlap, Occupied > Free > Unknown. Maps are warped and composited as
+classified OccupancyGrid values (-1 unknown, 0 free, 100 occupied), whose order is that
+priority: compositing is an element-wise maximum, and the merged grid is published as it is.
 
 Each map is warped into a *patch* of the lattice covering its known cells only, and the patch
 is cached: a robot whose map and pose did not change is not warped again.
@@ -17,17 +18,18 @@ from typing import Optional, Tuple
 import cv2
 import numpy as np
 
-from .grid import Grid, known_bbox, levels_to_values
+from .grid import Grid
 from .transforms import apply, cell_to_metric, inverse, se2
 
 
 @dataclass
 class Patch:
-    """A map warped onto the merged lattice: levels[j, i] is lattice cell (i0 + i, j0 + j)."""
+    """A map warped onto the merged lattice: int8 OccupancyGrid values (-1/0/100); values[j, i]
+    is lattice cell (i0 + i, j0 + j)."""
 
     i0: int
     j0: int
-    levels: np.ndarray
+    values: np.ndarray
 
 
 @dataclass
@@ -49,28 +51,24 @@ def lattice_for(reference: Grid) -> Lattice:
     return Lattice(reference.resolution, ox, oy)
 
 
-def warp_patch(levels: np.ndarray, resolution: float, origin, T_merged_k: np.ndarray,
-               lattice: Lattice, max_cells: int,
-               box: Optional[Tuple[int, int, int, int]] = None) -> Optional[Patch]:
-    """Warp one map's levels (grid resolution ``resolution``, ``origin`` in its frame k) by the
-    pose ``T_merged_k`` (metres, frame k -> merged frame) onto ``lattice``.
+def warp_patch(known: np.ndarray, box: Tuple[int, int, int, int], resolution: float, origin,
+               T_merged_k: np.ndarray, lattice: Lattice, max_cells: int) -> Optional[Patch]:
+    """Warp one map's known part onto ``lattice`` by the pose ``T_merged_k`` (metres, frame k ->
+    merged frame).
 
-    ``box``: the known cells' bounding box (rows, cols, half-open) if the caller has it
-    (:meth:`Grid.known_box`); found here otherwise.
-    Returns None when the map has no known cell or the patch would exceed ``max_cells``."""
-    box = known_bbox(levels, 1) if box is None else box
-    if box is None:
-        return None
+    ``known``: int8 OccupancyGrid values (-1/0/100) of the map's cells in ``box`` (rows r0:r1,
+    cols c0:c1 of its grid, half-open: :func:`grid.known_values`); the grid has ``resolution``
+    metres per cell and ``origin`` in its frame k.
+    Returns None when the patch would exceed ``max_cells``."""
     r0, r1, c0, c1 = box
     W_k = cell_to_metric(resolution, origin)
     shift = _lattice_shift(T_merged_k @ W_k, lattice)
     if shift is not None:
         # The map's cells are lattice cells (the reference, or a map placed at a whole-cell
-        # offset with no rotation): a slice, no resampling. The patch is a read-only view.
+        # offset with no rotation): no resampling. The patch shares the map's array.
         if (r1 - r0) * (c1 - c0) > max_cells:
             return None
-        view = levels[r0:r1, c0:c1]
-        return Patch(shift[0] + c0, shift[1] + r0, view)
+        return Patch(shift[0] + c0, shift[1] + r0, known)
     corners = np.array([[c0 - 0.5, r0 - 0.5], [c1 - 0.5, r0 - 0.5],
                         [c0 - 0.5, r1 - 0.5], [c1 - 0.5, r1 - 0.5]], np.float64)
     m = apply(T_merged_k @ W_k, corners)
@@ -84,11 +82,12 @@ def warp_patch(levels: np.ndarray, resolution: float, origin, T_merged_k: np.nda
         return None
     W_patch = cell_to_metric(res, (lattice.x0 + i0 * res, lattice.y0 + j0 * res, 0.0))
     M = inverse(W_k) @ inverse(T_merged_k) @ W_patch   # patch cells -> cells of k
-    sub = np.ascontiguousarray(levels[r0:r1, c0:c1])
     M = se2(-c0, -r0, 0.0) @ M
-    out = cv2.warpAffine(sub, M[:2], (w, h), flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP,
-                         borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-    return Patch(i0, j0, out)
+    # warpAffine takes no int8: as uint8, -1 is 255, the border value, so a lattice cell
+    # sampled outside the map stays unknown.
+    out = cv2.warpAffine(known.view(np.uint8), M[:2], (w, h), flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP,
+                         borderMode=cv2.BORDER_CONSTANT, borderValue=255)
+    return Patch(i0, j0, out.view(np.int8))
 
 
 def _lattice_shift(M: np.ndarray, lattice: Lattice) -> Optional[Tuple[int, int]]:
@@ -117,15 +116,15 @@ def composite(patches, lattice: Lattice, frame_id: str, max_cells: int) -> Optio
         return None
     i0 = min(p.i0 for p in patches)
     j0 = min(p.j0 for p in patches)
-    i1 = max(p.i0 + p.levels.shape[1] for p in patches)
-    j1 = max(p.j0 + p.levels.shape[0] for p in patches)
+    i1 = max(p.i0 + p.values.shape[1] for p in patches)
+    j1 = max(p.j0 + p.values.shape[0] for p in patches)
     if (i1 - i0) * (j1 - j0) > max_cells:
         raise ValueError('merged canvas %dx%d exceeds max_cells %d' % (i1 - i0, j1 - j0, max_cells))
-    canvas = np.zeros((j1 - j0, i1 - i0), np.uint8)
+    canvas = np.full((j1 - j0, i1 - i0), -1, np.int8)
     for p in patches:
-        h, w = p.levels.shape
+        h, w = p.values.shape
         view = canvas[p.j0 - j0:p.j0 - j0 + h, p.i0 - i0:p.i0 - i0 + w]
-        np.maximum(view, p.levels, out=view)
+        cv2.max(view, p.values, dst=view)   # in place (a view of the canvas), twice numpy's speed
     res = lattice.resolution
     origin = (lattice.x0 + i0 * res, lattice.y0 + j0 * res, 0.0)
-    return Grid(levels_to_values(canvas), res, origin, frame_id, 0.0, _levels=canvas)
+    return Grid(canvas, res, origin, frame_id, 0.0)

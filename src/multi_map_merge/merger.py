@@ -28,7 +28,7 @@ import numpy as np
 from . import estimate as est
 from .config import MergeConfig
 from .features import Features
-from .grid import DEFAULT_FREE_THRESH, DEFAULT_OCC_THRESH, Grid, known_bbox, rescale
+from .grid import DEFAULT_FREE_THRESH, DEFAULT_OCC_THRESH, Grid, known_bbox, known_values, rescale
 from .merge import Lattice, Patch, composite, lattice_for, warp_patch
 from . import posegraph
 from .pairs import PairInput, compute_features, crop_known, estimate_pair
@@ -176,7 +176,11 @@ class MapMerger:
             self._version += 1
             self._maps[name] = RobotMap(name, grid, self._version, time.time())
             self._errors.pop(name, None)
-            return event
+        if self._default_thresholds():
+            # Classify the map once, as it arrives, outside the lock (a big canvas takes a
+            # while): estimation and compositing find its levels, known box and values ready.
+            grid.known_values()
+        return event
 
     def _forget_locked(self, name: str) -> None:
         had = name in self._placements or any(name in k for k in self._edges)
@@ -357,10 +361,23 @@ class MapMerger:
     def _known_box(self, m: RobotMap) -> Optional[Tuple[int, int, int, int]]:
         """Known cells' box of a map's working grid, grown by a cell (cached on the grid for the
         default thresholds)."""
-        c = self.config
-        if c.free_thresh == DEFAULT_FREE_THRESH and c.occupied_thresh == DEFAULT_OCC_THRESH:
+        if self._default_thresholds():
             return m.grid.known_box()
+        c = self.config
         return known_bbox(m.grid.levels(c.free_thresh, c.occupied_thresh), 1)
+
+    def _known_values(self, m: RobotMap) -> Optional[Tuple[Tuple[int, int, int, int], np.ndarray]]:
+        """(known box, its OccupancyGrid values) of a map's working grid, what compositing warps
+        (cached on the grid for the default thresholds); None when nothing is known."""
+        if self._default_thresholds():
+            return m.grid.known_values()
+        box = self._known_box(m)
+        return None if box is None else (box, known_values(m.grid.levels(self.config.free_thresh,
+                                                                         self.config.occupied_thresh), box))
+
+    def _default_thresholds(self) -> bool:
+        c = self.config
+        return c.free_thresh == DEFAULT_FREE_THRESH and c.occupied_thresh == DEFAULT_OCC_THRESH
 
     def _features_of(self, m: RobotMap) -> Features:
         """(1) features of a map (in its crop's cells), computed once per map version."""
@@ -577,8 +594,9 @@ class MapMerger:
         if cached is not None and cached[0] == key:
             return cached[1]
         c = self.config
-        p = warp_patch(m.grid.levels(c.free_thresh, c.occupied_thresh), m.grid.resolution,
-                       m.grid.origin, T, lattice, c.max_cells, self._known_box(m))
+        kv = self._known_values(m)
+        p = None if kv is None else warp_patch(kv[1], kv[0], m.grid.resolution, m.grid.origin, T,
+                                               lattice, c.max_cells)
         self._patches[m.name] = (key, p)
         return p
 
