@@ -1,8 +1,8 @@
 // m-explore's compositing on poses we give it, so that both mergers composite the same output.
 //
 // m-explore's own estimate of a configuration may be wrong (on the intel pieces it places maps
-// at scale 2.4-4.1, shrinking them to a sixteenth of their area), and then its compositing time
-// is that of a different, smaller output. This driver feeds the maps to m-explore's library
+// at scales 2.4-4.1 of the reference and tens of metres off), and then its compositing time is
+// that of a different output. This driver feeds the maps to m-explore's library
 // (combine_grids::MergingPipeline, built by ../shared/peers/mexplore/build.sh) and sets the
 // transforms through its public setTransforms, as its node does with known_init_poses, then
 // times composeGrids() alone. It is built and run only by the benchmark; nothing of m-explore is
