@@ -115,8 +115,9 @@ def levels_to_values(levels: np.ndarray) -> np.ndarray:
     """Levels -> OccupancyGrid int8 values: -1 unknown, 0 free, 100 occupied."""
     import cv2   # cv2.LUT is about 10x faster than numpy fancy indexing on big grids
     # A slice of a grid goes in as it is (OpenCV takes its row stride): no copy first.
-    lv = levels if levels.dtype == np.uint8 and levels.strides[-1] == 1 else np.ascontiguousarray(levels, np.uint8)
-    return cv2.LUT(lv, _VALUES_LUT).view(np.int8)
+    strided_ok = levels.dtype == np.uint8 and levels.strides[-1] == 1
+    lv = levels if strided_ok else np.ascontiguousarray(levels, np.uint8)
+    return cv2.LUT(lv, _VALUES_LUT).view(np.int8).reshape(levels.shape)   # 1-D in: 1-D out
 
 
 def known_values(levels: np.ndarray, box: Tuple[int, int, int, int]) -> np.ndarray:

@@ -85,7 +85,8 @@ def warp_patch(known: np.ndarray, box: Tuple[int, int, int, int], resolution: fl
     M = se2(-c0, -r0, 0.0) @ M
     # warpAffine takes no int8: as uint8, -1 is 255, the border value, so a lattice cell
     # sampled outside the map stays unknown.
-    out = cv2.warpAffine(known.view(np.uint8), M[:2], (w, h), flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP,
+    out = cv2.warpAffine(known.view(np.uint8), M[:2], (w, h),
+                         flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP,
                          borderMode=cv2.BORDER_CONSTANT, borderValue=255)
     return Patch(i0, j0, out.view(np.int8))
 
