@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Does estimation block publishing? The live node, with robots whose estimation takes seconds.
 
-    python3 bench/live_gap.py [--robots 12] [--seconds 30] [--port 11800] [--no-peer] [--no-build]
+    python3 bench/live_gap.py [--robots 14] [--seconds 30] [--port 11800] [--no-peer] [--no-build]
 
 Runs `make build` first (unless --no-build) and takes the environment of the workspace's
 devel/setup.bash, so it needs nothing sourced.
@@ -127,7 +127,7 @@ def measure(seconds, robots, merge_period):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
-    ap.add_argument('--robots', type=int, default=12,
+    ap.add_argument('--robots', type=int, default=14,
                     help='robots (windows of half edmonton, about 1.8 M cells: estimation cycles of seconds)')
     ap.add_argument('--seconds', type=float, default=30.0)
     ap.add_argument('--no-build', action='store_true', help='skip `make build` (workspace already built)')
