@@ -7,6 +7,7 @@ image, while unknown space has nothing to find.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Optional, Tuple
 
 import cv2
 import numpy as np
@@ -26,11 +27,13 @@ class Features:
         points: (N, 2) float32 keypoint positions in the grid's cell coordinates (col, row).
         descriptors: (N, 61) uint8 binary AKAZE descriptors (matched with Hamming distance).
         known_cells: number of known cells in the grid (size of what was described).
+        factor: the image described had one pixel per ``factor`` x ``factor`` cells.
     """
 
     points: np.ndarray
     descriptors: np.ndarray
     known_cells: int
+    factor: int = 1
 
     def __len__(self) -> int:
         return int(self.points.shape[0])
@@ -64,8 +67,9 @@ class FeatureExtractor:
         self._max = int(max_features)
         self._cells = int(detect_cells)
 
-    def __call__(self, levels: np.ndarray) -> Features:
-        """Features of a grid given its levels array (see :func:`grid.classify`)."""
+    def __call__(self, levels: np.ndarray, factor: Optional[int] = None) -> Features:
+        """Features of a grid given its levels array (see :func:`grid.classify`), described
+        at ``factor`` cells per pixel, or at the factor its known area calls for."""
         box = known_bbox(levels, 0)
         if box is None:
             return empty_features()
@@ -79,9 +83,8 @@ class FeatureExtractor:
         lv = levels[a0:a1, b0:b1]
         if (a0, a1, b0, b1) != (A0, A1, B0, B1):
             lv = cv2.copyMakeBorder(lv, a0 - A0, A1 - a1, b0 - B0, B1 - b1, cv2.BORDER_CONSTANT, value=UNKNOWN)
-        f = 1
-        if self._cells and (r1 - r0) * (c1 - c0) > self._cells:
-            f = int(np.ceil(np.sqrt((r1 - r0) * (c1 - c0) / float(self._cells))))
+        f = self.factor(box) if factor is None else int(factor)
+        if f > 1:
             lv = _maxpool(lv, f)
         img = to_image(lv)
         kps, desc = self._akaze.detectAndCompute(img, None)
@@ -94,7 +97,15 @@ class FeatureExtractor:
         pts = np.array([kp.pt for kp in kps], np.float32)
         pts = (pts + 0.5) * f - 0.5                          # pooled pixel -> cell centres
         pts += np.array([B0, A0], np.float32)                # window -> grid cells
-        return Features(pts, desc, int(np.count_nonzero(levels)))
+        return Features(pts, desc, int(np.count_nonzero(levels)), f)
+
+    def factor(self, box: Tuple[int, int, int, int]) -> int:
+        """Cells per pixel of the image a known box (rows, cols, half-open) is described on:
+        1 up to ``detect_cells`` cells, then the integer that brings it under."""
+        r0, r1, c0, c1 = box
+        if self._cells and (r1 - r0) * (c1 - c0) > self._cells:
+            return int(np.ceil(np.sqrt((r1 - r0) * (c1 - c0) / float(self._cells))))
+        return 1
 
 
 def _maxpool(levels: np.ndarray, f: int) -> np.ndarray:

@@ -248,3 +248,30 @@ def test_a_pair_estimated_on_the_known_crops_is_the_pair_of_the_whole_grids(inte
     assert d < 0.02 and deg < 0.1, (d, deg)
     d, deg = pose_error(Tb, truth(ps[0][1], ps[1][1]))
     assert d < 0.1 and deg < 1.0
+
+
+def test_a_small_map_merges_into_a_big_one_described_coarser(intel):
+    """A big map's features are computed on a coarser image (``feature_cells``), a small one's
+    on the full grid; a pair is matched at one scale. Windows of 220-330 cells at random poses
+    against the whole map: without one scale, these three were not merged at all."""
+    r0, r1, c0, c1 = known_bbox(intel.levels())
+    big, T_big = cut_piece(intel, (r0, r1, c0, c1), (0, 0, 0))
+    rng = np.random.default_rng(3)
+    windows = []
+    for _ in range(4):
+        h = int(rng.integers(220, 330))
+        a, b = int(rng.integers(r0, r1 - h)), int(rng.integers(c0, c1 - h))
+        windows.append(((a, a + h, b, b + h), (rng.uniform(-3, 3), rng.uniform(-3, 3), rng.uniform(-3, 3))))
+    from multi_map_merge.features import FeatureExtractor
+    cfg = MergeConfig(reference_robot='big', workers=1)
+    fe = FeatureExtractor(cfg.akaze_threshold, cfg.max_features, cfg.feature_cells)
+    for rect, pose in windows[1:]:
+        small, T_small = cut_piece(intel, rect, pose)
+        assert fe.factor(big.known_box()) > fe.factor(small.known_box()), rect
+        m = MapMerger(cfg)
+        m.update_map('big', big)
+        m.update_map('small', small)
+        m.estimate()
+        assert 'small' in m.placements(), m.status()['small']
+        d, deg = pose_error(m.placements()['small'].T, truth(T_big, T_small))
+        assert d < 0.1 and deg < 1.0, (rect, d, deg)
