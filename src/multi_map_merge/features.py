@@ -100,12 +100,17 @@ class FeatureExtractor:
         return Features(pts, desc, int(np.count_nonzero(levels)), f)
 
     def factor(self, box: Tuple[int, int, int, int]) -> int:
-        """Cells per pixel of the image a known box (rows, cols, half-open) is described on:
-        1 up to ``detect_cells`` cells, then the integer that brings it under."""
-        r0, r1, c0, c1 = box
-        if self._cells and (r1 - r0) * (c1 - c0) > self._cells:
-            return int(np.ceil(np.sqrt((r1 - r0) * (c1 - c0) / float(self._cells))))
+        """Cells per pixel of the image a known box (rows, cols, half-open) is described on."""
+        return coarsening(box, self._cells)
+
+
+def coarsening(box: Optional[Tuple[int, int, int, int]], cells: int) -> int:
+    """The integer factor that brings a box (rows, cols, half-open) under ``cells`` pixels;
+    1 when it is under already, when ``cells`` is 0 or there is no box."""
+    if box is None or not cells:
         return 1
+    area = (box[1] - box[0]) * (box[3] - box[2])
+    return int(np.ceil(np.sqrt(area / float(cells)))) if area > cells else 1
 
 
 def _maxpool(levels: np.ndarray, f: int) -> np.ndarray:

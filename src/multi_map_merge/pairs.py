@@ -14,7 +14,7 @@ import numpy as np
 
 from . import estimate as est
 from .config import MergeConfig
-from .features import FeatureExtractor, Features
+from .features import FeatureExtractor, Features, coarsening
 from .grid import known_bbox
 from .refine import WALL_FIELD_MARGIN, WallField, occupied_points, refine
 from .transforms import apply, image_to_pose, inverse, pose_distance, se2, turn_between
@@ -81,18 +81,16 @@ DESCRIBED_AT_MOST = 16   # x feature_cells: the largest image a map is described
 def _at_one_scale(config: MergeConfig, pa: PairInput, ch: PairInput) -> Tuple[Features, Features]:
     """The pair's features described at one scale (parent's, child's). A map whose known area
     is large is described on a coarser image (``feature_cells``), and keypoints of images at
-    different scales do not match: a window of 220-330 cells of intel or aces against the whole
-    map merged 5 times in 20, at one scale 20 times (7 buildings: 20 in 68, now 65). The coarser map is described again at the
-    finer map's factor (cached per process): the other way, a small map pooled by the big one's
-    factor keeps too few keypoints (aces: 0 merged in 8) ..."""
-    f = min(pa.features.factor, ch.features.factor)
-    if config.feature_cells:
-        # ... but no finer than an image of DESCRIBED_AT_MOST x feature_cells pixels: a whole
-        # edmonton (4.3 M known cells) at full resolution costs a worker 0.8 s and 680 MB, at
-        # a factor of 2 0.26 s and 290 MB.
-        box = _known(pa if pa.features.factor >= ch.features.factor else ch)[0]
-        cells = (box[1] - box[0]) * (box[3] - box[2]) if box else 0
-        f = max(f, int(math.ceil(math.sqrt(cells / float(DESCRIBED_AT_MOST * config.feature_cells)))))
+    different scales do not match: windows of 220-330 cells of 7 buildings against the whole
+    building merged 20 times in 68, at one scale 65. The coarser map is described again at the
+    finer map's factor (cached per process): the other way, a small map pooled by the big
+    one's factor keeps too few keypoints (aces: 0 merged in 8) ..."""
+    coarser = pa if pa.features.factor >= ch.features.factor else ch
+    # ... but on an image of at most DESCRIBED_AT_MOST x feature_cells pixels: a whole edmonton
+    # (4.3 M known cells) at full resolution costs a worker 0.8 s and 680 MB, at a factor of 2
+    # 0.26 s and 290 MB.
+    f = max(min(pa.features.factor, ch.features.factor),
+            coarsening(_known(coarser)[0], DESCRIBED_AT_MOST * config.feature_cells))
 
     def at(p: PairInput) -> Features:
         if p.features.factor == f:
