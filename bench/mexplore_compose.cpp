@@ -88,10 +88,11 @@ int main(int argc, char** argv) {
     Pose2 Wk{1, 0, atof(argv[a + 2]) / res, atof(argv[a + 3]) / res};
     Pose2 T = Wk.inverse() * P.inverse() * W0;
     geometry_msgs::Transform t;
+    double half_turn = std::atan2(T.s, T.c) / 2;
     t.translation.x = T.x;
     t.translation.y = T.y;
-    t.rotation.z = std::sin(std::atan2(T.s, T.c) / 2);
-    t.rotation.w = std::cos(std::atan2(T.s, T.c) / 2);
+    t.rotation.z = std::sin(half_turn);
+    t.rotation.w = std::cos(half_turn);
     transforms.push_back(t);
     grids.push_back(g);
   }
