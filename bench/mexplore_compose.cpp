@@ -8,15 +8,26 @@
 // times composeGrids() alone. It is built and run only by the benchmark; nothing of m-explore is
 // part of the project.
 //
-// usage: mexplore_compose REPS pgm res ox oy x y yaw [pgm res ox oy x y yaw ...]
+// With --own CONFIDENCE, the poses are ignored and m-explore estimates its own transforms once
+// (estimateTransforms(AKAZE, CONFIDENCE), as merge_maps_mexplore does): composeGrids() is then
+// timed on its own merge, without its estimation in the same process each time.
+// With --serve, the driver sets up once, prints {"ready": true}, then times REPS compositions
+// for every line it reads on stdin, until EOF: the benchmark alternates these bursts with ours,
+// so that both sides are measured in the same minutes of this noisy VM.
+//
+// usage: mexplore_compose [--own CONFIDENCE] [--serve] REPS pgm res ox oy x y yaw [...]
 //   pgm res ox oy   a map_server map (image, metres per cell, origin in metres)
 //   x y yaw         pose of that map's frame in the first map's frame (metres, radians)
 // prints {"compose_ms": median of REPS, "cells": merged cells, "known": merged known cells}
+// per burst
 #include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <cstring>
+#include <iostream>
+#include <string>
 #include <vector>
 
 #include <combine_grids/merging_pipeline.h>
@@ -58,11 +69,44 @@ nav_msgs::OccupancyGrid::Ptr load(const char* pgm, double res, double ox, double
   return g;
 }
 
+// REPS back-to-back composeGrids(): one JSON line with their median.
+void burst(combine_grids::MergingPipeline& pipe, int reps) {
+  std::vector<double> ms;
+  nav_msgs::OccupancyGrid::Ptr merged;
+  for (int i = 0; i < reps; ++i) {
+    auto t0 = std::chrono::steady_clock::now();
+    merged = pipe.composeGrids();
+    ms.push_back(std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
+  }
+  std::sort(ms.begin(), ms.end());
+  size_t known = 0, cells = merged ? merged->data.size() : 0;
+  if (merged)
+    for (signed char v : merged->data) known += v >= 0;
+  printf("{\"compose_ms\": %.3f, \"cells\": %zu, \"known\": %zu}\n", ms[ms.size() / 2], cells, known);
+  fflush(stdout);
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
+  bool own = false, serve = false;
+  double confidence = 1.0;
+  while (argc > 1 && argv[1][0] == '-' && argv[1][1] == '-') {
+    if (!strcmp(argv[1], "--own") && argc > 2) {
+      own = true;
+      confidence = atof(argv[2]);
+      argv += 1;
+      argc -= 1;
+    } else if (!strcmp(argv[1], "--serve")) {
+      serve = true;
+    } else {
+      break;
+    }
+    argv += 1;
+    argc -= 1;
+  }
   if (argc < 9 || (argc - 2) % 7 != 0) {
-    fprintf(stderr, "usage: mexplore_compose REPS pgm res ox oy x y yaw [...]\n");
+    fprintf(stderr, "usage: mexplore_compose [--own CONFIDENCE] [--serve] REPS pgm res ox oy x y yaw [...]\n");
     return 2;
   }
   int reps = std::max(1, atoi(argv[1]));
@@ -98,21 +142,19 @@ int main(int argc, char** argv) {
   }
   combine_grids::MergingPipeline pipe;
   pipe.feed(grids.begin(), grids.end());
-  if (!pipe.setTransforms(transforms.begin(), transforms.end())) {
+  if (own) {
+    pipe.estimateTransforms(combine_grids::FeatureType::AKAZE, confidence);
+  } else if (!pipe.setTransforms(transforms.begin(), transforms.end())) {
     fprintf(stderr, "setTransforms refused the poses\n");
     return 1;
   }
-  std::vector<double> ms;
-  nav_msgs::OccupancyGrid::Ptr merged;
-  for (int i = 0; i < reps; ++i) {
-    auto t0 = std::chrono::steady_clock::now();
-    merged = pipe.composeGrids();
-    ms.push_back(std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
+  if (!serve) {
+    burst(pipe, reps);
+    return 0;
   }
-  std::sort(ms.begin(), ms.end());
-  size_t known = 0;
-  for (signed char v : merged->data) known += v >= 0;
-  printf("{\"compose_ms\": %.3f, \"cells\": %zu, \"known\": %zu}\n", ms[ms.size() / 2],
-         merged->data.size(), known);
+  printf("{\"ready\": true}\n");
+  fflush(stdout);
+  std::string line;
+  while (std::getline(std::cin, line)) burst(pipe, reps);
   return 0;
 }

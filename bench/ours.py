@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """Our side of one benchmark configuration, run in a fresh process (so its peak RSS is its own).
 
-    python3 bench/ours.py SPEC.json      -> one JSON line on stdout
+    python3 bench/ours.py SPEC.json          -> one JSON line on stdout
+    python3 bench/ours.py --serve SPEC.json  -> compositing bursts on demand (see serve())
 
 SPEC: {"paths": [map yaml...], "truth": [3x3 pose of map k in map 0's frame] or null,
 "reps": R, "pairs": [[a, b], ...]}. Measures, with the project's defaults (MergeConfig()):
@@ -42,7 +43,7 @@ import numpy as np
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), 'src'))
 
 
-COMPOSE_REPS = 9   # back-to-back compositing runs, both sides (peer.compose_given too)
+COMPOSE_REPS = 9   # back-to-back compositing runs per burst, both sides (bench/duel.py)
 
 
 def publish(grid):
@@ -91,7 +92,42 @@ def score(placements, truth, n):
     return errs
 
 
+def compose_burst(m):
+    """COMPOSE_REPS back-to-back compose() + publishing of ``m``'s merged map, every map warped
+    again each time (as m-explore's composeGrids() warps them): medians in ms."""
+    comp, pub = [], []
+    for _ in range(COMPOSE_REPS):
+        m._patches.clear()
+        m._merged = None
+        t = time.perf_counter()
+        merged = m.compose()
+        comp.append(time.perf_counter() - t)
+        pub.append(publish(merged)[0])
+    return {'compose_ms': float(np.median(comp)) * 1000.0, 'publish_ms': float(np.median(pub)) * 1000.0,
+            'ms': float(np.median(np.add(comp, pub))) * 1000.0}
+
+
+def serve(spec):
+    """Estimate once, print {"ready": true, "poses": ...}, then one compose_burst() JSON line per
+    line read on stdin, until EOF: bench/duel.py alternates these bursts with m-explore's."""
+    from multi_map_merge.config import MergeConfig
+    from multi_map_merge.mapio import load_map
+    from multi_map_merge.merger import MapMerger
+    from multi_map_merge.transforms import xyyaw
+    m = MapMerger(MergeConfig())
+    for k, p in enumerate(spec['paths']):
+        m.update_map('r%02d' % k, load_map(p))
+    m.estimate()
+    P = m.placements()
+    poses = {k: list(xyyaw(P['r%02d' % k].T)) for k in range(len(spec['paths'])) if 'r%02d' % k in P}
+    print(json.dumps({'ready': True, 'poses': poses}), flush=True)
+    for _ in sys.stdin:
+        print(json.dumps(compose_burst(m)), flush=True)
+
+
 def main():
+    if sys.argv[1] == '--serve':
+        return serve(json.load(open(sys.argv[2])))
     spec = json.load(open(sys.argv[1]))
     from multi_map_merge.config import MergeConfig
     from multi_map_merge.features import FeatureExtractor
@@ -169,14 +205,7 @@ def main():
         comp_again.append(time.perf_counter() - t)
         pub.append(publish(merged)[0])
 
-    comp_b2b = []
-    for _ in range(COMPOSE_REPS):
-        m._patches.clear()     # every map warped again, as m-explore's composeGrids() does
-        m._merged = None
-        t = time.perf_counter()
-        m.compose()
-        comp_b2b.append(time.perf_counter() - t)
-    pub_b2b = [publish(merged)[0] for _ in range(COMPOSE_REPS)]
+    b2b = compose_burst(m)
     published_bytes = publish(merged)[1]
 
     P = m.placements()
@@ -186,8 +215,8 @@ def main():
     print(json.dumps({
         'features_ms': med(feat), 'pair_ms': med(pair), 'cold_ms': med(cold), 'warm_ms': med(warm),
         'cold_first_ms': cold[0] * 1000.0, 'pool_start_ms': pool_start,
-        'ingest_ms': med(ingest), 'compose_first_ms': med(comp), 'compose_ms': med(comp_b2b), 'compose_again_ms': med(comp_again),
-        'publish_first_ms': med(pub), 'publish_ms': med(pub_b2b),
+        'ingest_ms': med(ingest), 'compose_first_ms': med(comp), 'compose_ms': b2b['compose_ms'], 'compose_again_ms': med(comp_again),
+        'publish_first_ms': med(pub), 'publish_ms': b2b['publish_ms'],
         'published_bytes': published_bytes,
         'rss_mb': resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0 + worker_peaks_mb(),
         'rss_self_mb': resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,

@@ -7,10 +7,11 @@ Its tool prints only the median estimation and compositing times of a whole run,
                       (matching + bundle adjustment of one pair);
   peak RSS          = ru_maxrss of the mexplore_merge process itself (wait4 on it, through a
                       wrapper placed in a private PEER_WS, so the Python front end is not counted);
-  compositing of the same output
-                    = its composeGrids() on the poses our merger found (bench/mexplore_compose.cpp,
-                      our driver of its library, built here against the peer's build): where its
-                      own estimate is wrong, its compositing time is that of another output.
+  compositing       = its composeGrids(), timed by bench/mexplore_compose.cpp (our driver of its
+                      library, built here against the peer's build) in bursts alternated with
+                      ours (bench/duel.py): on its own estimate, and on the poses our merger
+                      found (the same output: where its own estimate is wrong, its compositing
+                      time is that of another output).
 Nothing of m-explore is part of the project; when ../shared is absent every call here says so.
 """
 from __future__ import annotations
@@ -105,34 +106,26 @@ class Peer:
         rss = max(int(x) for x in open(self.rss_file).read().split()) / 1024.0
         return timing, rep, rss, wall
 
-    def compose_given(self, paths, poses, reps, runs):
-        """m-explore's compositing of the maps placed at ``poses`` ({index: [x, y, yaw]}: pose
-        of map k's frame in map 0's frame, metres and radians; map 0 is the reference), in
-        ``runs`` fresh processes of ``reps`` back-to-back compositions each, as ours is measured:
-        {'compose_ms': median over the runs of each run's median, 'runs_ms', 'cells', 'known'}
-        of its merged grid."""
+    def compose_cmd(self, paths, reps, poses=None, own_confidence=1.0):
+        """Command line of bench/mexplore_compose.cpp serving compositing bursts (bench/duel.py)
+        of ``reps`` composeGrids() each: of the maps placed at ``poses`` ({index: [x, y, yaw]},
+        pose of map k's frame in map 0's frame, metres and radians; map 0 is the reference), or,
+        without poses, of m-explore's own estimate (estimateTransforms once, ``own_confidence``
+        as merge_maps_mexplore's default)."""
         import yaml
         exe = os.path.join(self.root, 'mexplore_compose')
         if not os.path.exists(exe):
             _build_driver(exe)
-        args = [exe, str(reps)]
+        args = [exe] + (['--own', repr(own_confidence)] if poses is None else []) + ['--serve', str(reps)]
         for k, path in enumerate(paths):
-            if str(k) not in poses:
+            pose = [0.0, 0.0, 0.0] if poses is None else poses.get(str(k), poses.get(k))
+            if pose is None:
                 continue
             m = yaml.safe_load(open(path))
             img = m['image'] if os.path.isabs(m['image']) else os.path.join(os.path.dirname(path), m['image'])
             args += [img, repr(float(m['resolution'])), repr(float(m['origin'][0])),
-                     repr(float(m['origin'][1]))] + [repr(float(v)) for v in poses[str(k)]]
-        got = []
-        for _ in range(runs):
-            r = subprocess.run(args, capture_output=True, text=True, env=ENV)
-            if r.returncode != 0:
-                raise RuntimeError('mexplore_compose failed: %s' % r.stderr[-300:])
-            got.append(json.loads(r.stdout.strip().splitlines()[-1]))
-        out = dict(got[0])
-        out['runs_ms'] = [g['compose_ms'] for g in got]
-        out['compose_ms'] = float(np.median(out['runs_ms']))
-        return out
+                     repr(float(m['origin'][1]))] + [repr(float(v)) for v in pose]
+        return args
 
     def measure(self, paths, truth, reps, pairs, full=True):
         """m-explore's figures for one configuration (see module docstring)."""

@@ -52,6 +52,18 @@ def _f(v, fmt='%.0f'):
     return fmt % v
 
 
+def compose_cells(r):
+    """(ours: compose + publish ms, (m-explore on its own merge: ms, ratio), (on our poses: ms,
+    ratio)) of a row: the paired figures of bench/duel.py (each ratio the median of the rounds'
+    ratios); without m-explore, ours from bench/ours.py and no peer figures."""
+    d = r.get('compose') or {}
+    if not d:
+        o = r['ours']
+        return o['compose_ms'] + o['publish_ms'], (None, None), (None, None)
+    pick = lambda k: (d[k]['compose_ms'], d[k]['ratio']) if d.get(k) else (None, None)  # noqa: E731
+    return d['ours_ms'], pick('own'), pick('same_output')
+
+
 def rows_table(rows, peer_note):
     """The two printed tables (time; memory and correctness) as one string."""
     out = []
@@ -61,23 +73,23 @@ def rows_table(rows, peer_note):
             'compose+publ ms', 'same output')
     h = '%-16s %5s %3s | %-21s | %-21s | %-24s | %-18s | %-26s | %-14s' % cols
     out += ['', 'TIME  (each cell: ours / m-explore = ratio; ratio < 1: we are faster. compose: '
-            'm-explore\'s compositing of its own merge; same output: its compositing of the maps '
-            'at our poses, ms = ratio)', h, '-' * len(h)]
+            'ours + publishing against m-explore\'s compositing of its own merge; same output: its '
+            'compositing of the maps at our poses, ms = ratio. Compositing is measured in pairs, '
+            'burst after burst (bench/duel.py): medians of the rounds and of their ratios)',
+            h, '-' * len(h)]
     for r in rows:
         o, p = r['ours'], r['peer']
 
         def trip(a, b, fa='%.1f', fb='%.1f'):
             return '%s / %s = %s' % (_f(a, fa), _f(b, fb), _f(_r(a, b), '%.2fx'))
-        cp = o['compose_ms'] + o['publish_ms']
-        same = (p.get('same_output') or {}).get('compose_ms')
+        cp, own, same = compose_cells(r)
         out.append('%-16s %5s %3d | %-21s | %-21s | %-24s | %-18s | %-26s | %-14s' % (
             r['name'], '%dk' % (o['map_cells'] // 1000), r['robots'],
             trip(o['features_ms'], p.get('features_ms')), trip(o['pair_ms'], p.get('pair_ms'), '%.0f', '%.0f'),
             trip(o['cold_ms'], p.get('estimate_ms'), '%.0f', '%.0f'),
             trip(o['warm_ms'], p.get('estimate_ms'), '%.2f', '%.0f'),
-            '%.1f+%.1f / %s = %s' % (o['compose_ms'], o['publish_ms'], _f(p.get('compose_ms'), '%.1f'),
-                                     _f(_r(cp, p.get('compose_ms')), '%.2fx')),
-            '%s = %s' % (_f(same, '%.1f'), _f(_r(cp, same), '%.2fx'))))
+            '%s / %s = %s' % (_f(cp, '%.1f'), _f(own[0], '%.1f'), _f(own[1], '%.2fx')),
+            '%s = %s' % (_f(same[0], '%.1f'), _f(same[1], '%.2fx'))))
     h = '%-16s %3s | %-30s | %-16s | %-38s' % ('input', 'N', 'peak RSS MB (ours: +workers)', 'placed (ok)',
                                                 'max error: ours | m-explore')
     out += ['', 'MEMORY AND CORRECTNESS  (placed: robots put in the merged frame besides the reference; '
@@ -120,11 +132,13 @@ def plot(rows, path):
     series(ax[0], sweep, n, 'ours', 'cold_ms', 'o-', 'ours: estimation, cold')
     series(ax[0], sweep, n, 'peer', 'estimate_ms', 'o--', 'm-explore: estimation')
     series(ax[0], sweep, n, 'ours', 'warm_ms', 'd-', 'ours: estimation, warm')
-    series(ax[0], sweep, n, 'ours', 'compose_ms', 's-', 'ours: compositing')
-    series(ax[0], sweep, n, 'peer', 'compose_ms', 's--', 'm-explore: compositing')
-    pts = [(n(r), r['peer']['same_output']['compose_ms']) for r in sweep if r['peer'].get('same_output')]
-    if pts:
-        ax[0].plot(*zip(*pts), 's:', label='m-explore: compositing at our poses')
+    for k, style, label in ((0, 's-', 'ours: compositing + publishing'),
+                            (1, 's--', 'm-explore: compositing'),
+                            (2, 's:', 'm-explore: compositing at our poses')):
+        pts = [(n(r), compose_cells(r)[k] if k == 0 else compose_cells(r)[k][0]) for r in sweep]
+        pts = [q for q in pts if q[1] is not None]
+        if pts:
+            ax[0].plot(*zip(*pts), style, label=label)
     ax[0].set_xscale('log', base=2)
     ax[0].set_xlabel('robots (intel-sized maps, all overlapping)')
     ax[0].set_title('time against robot count')

@@ -23,6 +23,7 @@ import time
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 
+import duel  # noqa: E402
 import inputs  # noqa: E402
 import peer  # noqa: E402
 import report  # noqa: E402
@@ -53,6 +54,26 @@ def run_ours(paths, truth, runs, pairs, root, reps):
     out['runs'] = [{k: v for k, v in g.items() if isinstance(v, (int, float))} for g in got]
     out['placed_each_run'] = [g['placed'] for g in got]
     return out
+
+
+def compose_duel(paths, pr, reps, own, root):
+    """Compositing in pairs (bench/duel.py): our compose + publish against m-explore's
+    composeGrids() on the maps at our poses ('same_output') and, when ``own``, on its own
+    estimate ('own')."""
+    spec = os.path.join(root, 'serve_%d.json' % len(os.listdir(root)))
+    with open(spec, 'w') as f:
+        json.dump({'paths': paths}, f)
+    servers = [duel.Server([sys.executable, os.path.join(HERE, 'ours.py'), '--serve', spec])]
+    try:
+        peers = {'same_output': duel.Server(pr.compose_cmd(paths, reps, poses=servers[0].ready['poses']), peer.ENV)}
+        servers.append(peers['same_output'])
+        if own:
+            peers['own'] = duel.Server(pr.compose_cmd(paths, reps), peer.ENV)
+            servers.append(peers['own'])
+        return duel.duel(servers[0], peers)
+    finally:
+        for s in servers:
+            s.close()
 
 
 def main():
@@ -91,16 +112,16 @@ def main():
             full = n <= a.peer_max_robots
             p = pr.measure(paths, truth, cycles, [tuple(x) for x in pairs], full=full)
             p['reps'] = cycles
-            if ours.get('poses'):
-                p['same_output'] = pr.compose_given(paths, ours['poses'], ours['compose_reps'], reps)
+            comp = compose_duel(paths, pr, ours['compose_reps'], full, root)
             if not full:
                 p['skipped'] = 'full run skipped above %d robots (m-explore x16 takes ~50 s)' % a.peer_max_robots
             p['bench_s'] = time.time() - t0
         else:
             p = {'skipped': note}
+            comp = None
         ours['bench_s'] = t_ours
         rows.append({'name': name, 'kind': kind, 'robots': n, 'reps': reps, 'cycles': cycles, 'pairs': pairs,
-                     'ours': ours, 'peer': p})
+                     'ours': ours, 'peer': p, 'compose': comp})
         print('.. %-16s ours: cold %7.0f ms (%.0f s)   m-explore: %s ms (%s s)' % (
             name, ours['cold_ms'], t_ours, report._f(p.get('estimate_ms')), report._f(p.get('bench_s'))),
             flush=True)

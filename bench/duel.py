@@ -1,0 +1,71 @@
+"""Compositing measured in pairs: our merger's and m-explore's, burst after burst, in the same
+minutes.
+
+This VM's speed drifts by up to a factor of two over minutes (other guests share its cores), so
+two figures taken minutes apart can put a ratio near 1 on either side of it. Here each side is
+a long-lived process that has already loaded its maps and placed them; each round asks every
+side for one burst (COMPOSE_REPS back-to-back compositions, their median), in an order that
+rotates from round to round. Each round gives a ratio of ours over each peer burst; the figure is
+the median over the rounds, of the times and of the ratios.
+
+The processes speak JSON lines: a first line {"ready": true, ...}, then one line per line they
+read on stdin (bench/ours.py --serve, bench/mexplore_compose.cpp --serve).
+"""
+from __future__ import annotations
+
+import json
+import subprocess
+
+import numpy as np
+
+ROUNDS = 11
+
+
+class Server:
+    """One side: a process serving bursts."""
+
+    def __init__(self, cmd, env=None):
+        self.p = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                  stderr=subprocess.PIPE, text=True, env=env)
+        self.ready = self._line()
+
+    def _line(self):
+        line = self.p.stdout.readline()
+        if not line:
+            err = self.p.stderr.read()
+            raise RuntimeError('%s stopped: %s' % (self.p.args[0], err[-500:]))
+        return json.loads(line)
+
+    def burst(self):
+        self.p.stdin.write('\n')
+        self.p.stdin.flush()
+        return self._line()
+
+    def close(self):
+        if self.p.poll() is None:
+            self.p.stdin.close()
+            try:
+                self.p.wait(timeout=60)
+            except subprocess.TimeoutExpired:
+                self.p.kill()
+
+
+def duel(ours, peers, rounds=ROUNDS):
+    """``ours``: a Server whose bursts carry 'ms' (compose + publish); ``peers``: {label: Server}
+    whose bursts carry 'compose_ms'. Returns {'ours_ms', 'ours_rounds', label: {'compose_ms',
+    'ratio', 'rounds', 'ratios', 'cells', 'known'}}: medians over the rounds."""
+    sides = [('ours', ours)] + sorted(peers.items())
+    got = {name: [] for name, _ in sides}
+    for r in range(rounds):
+        k = r % len(sides)
+        for name, srv in sides[k:] + sides[:k]:
+            got[name].append(srv.burst())
+    mine = [b['ms'] for b in got['ours']]
+    out = {'ours_ms': float(np.median(mine)), 'ours_rounds': mine, 'rounds': rounds}
+    for name, _ in sides[1:]:
+        theirs = [b['compose_ms'] for b in got[name]]
+        ratios = [a / b for a, b in zip(mine, theirs) if b > 0]
+        out[name] = {'compose_ms': float(np.median(theirs)), 'rounds': theirs,
+                     'ratio': float(np.median(ratios)) if ratios else None, 'ratios': ratios,
+                     'cells': got[name][-1].get('cells'), 'known': got[name][-1].get('known')}
+    return out
