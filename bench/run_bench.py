@@ -63,16 +63,15 @@ def compose_duel(paths, pr, reps, own, root):
     spec = os.path.join(root, 'serve_%d.json' % len(os.listdir(root)))
     with open(spec, 'w') as f:
         json.dump({'paths': paths}, f)
-    servers = [duel.Server([sys.executable, os.path.join(HERE, 'ours.py'), '--serve', spec])]
+    ours = duel.Server([sys.executable, os.path.join(HERE, 'ours.py'), '--serve', spec])
+    peers = {}
     try:
-        peers = {'same_output': duel.Server(pr.compose_cmd(paths, reps, poses=servers[0].ready['poses']), peer.ENV)}
-        servers.append(peers['same_output'])
+        peers['same_output'] = duel.Server(pr.compose_cmd(paths, reps, poses=ours.ready['poses']), peer.ENV)
         if own:
             peers['own'] = duel.Server(pr.compose_cmd(paths, reps), peer.ENV)
-            servers.append(peers['own'])
-        return duel.duel(servers[0], peers)
+        return duel.duel(ours, peers)
     finally:
-        for s in servers:
+        for s in [ours] + list(peers.values()):
             s.close()
 
 
