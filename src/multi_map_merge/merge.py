@@ -62,7 +62,8 @@ def warp_patch(known: np.ndarray, box: Tuple[int, int, int, int], resolution: fl
     Returns None when the patch would exceed ``max_cells``."""
     r0, r1, c0, c1 = box
     W_k = cell_to_metric(resolution, origin)
-    shift = _lattice_shift(T_merged_k @ W_k, lattice)
+    cells_to_merged = T_merged_k @ W_k   # cells of k -> metres in the merged frame
+    shift = _lattice_shift(cells_to_merged, lattice)
     if shift is not None:
         # The map's cells are lattice cells (the reference, or a map placed at a whole-cell
         # offset with no rotation): no resampling. The patch shares the map's array.
@@ -71,7 +72,7 @@ def warp_patch(known: np.ndarray, box: Tuple[int, int, int, int], resolution: fl
         return Patch(shift[0] + c0, shift[1] + r0, known)
     corners = np.array([[c0 - 0.5, r0 - 0.5], [c1 - 0.5, r0 - 0.5],
                         [c0 - 0.5, r1 - 0.5], [c1 - 0.5, r1 - 0.5]], np.float64)
-    m = apply(T_merged_k @ W_k, corners)
+    m = apply(cells_to_merged, corners)
     res = lattice.resolution
     i0 = int(math.floor((m[:, 0].min() - lattice.x0) / res))
     i1 = int(math.ceil((m[:, 0].max() - lattice.x0) / res))
