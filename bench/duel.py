@@ -1,15 +1,16 @@
-"""Compositing measured in pairs: our merger's and m-explore's, burst after burst, in the same
-minutes.
+"""Compositing (and cold estimation) measured in pairs: our merger's and m-explore's, burst after
+burst, in the same minutes.
 
 This VM's speed drifts by up to a factor of two over minutes (other guests share its cores), so
 two figures taken minutes apart can put a ratio near 1 on either side of it. Here each side is
 a long-lived process that has already loaded its maps and placed them; each round asks every
 side for one burst (COMPOSE_REPS back-to-back compositions, their median), in an order that
 rotates from round to round. Each round gives a ratio of ours over each peer burst; the figure is
-the median over the rounds, of the times and of the ratios.
+the median over the rounds, of the times and of the ratios. Cold estimation is paired the same
+way, one full cycle per burst on each side.
 
 The processes speak JSON lines: a first line {"ready": true, ...}, then one line per line they
-read on stdin (bench/ours.py --serve, bench/mexplore_compose.cpp --serve).
+read on stdin (bench/ours.py --serve / --serve-estimate, bench/mexplore_compose.cpp --serve).
 """
 from __future__ import annotations
 
@@ -50,10 +51,10 @@ class Server:
                 self.p.kill()
 
 
-def duel(ours, peers, rounds=ROUNDS):
-    """``ours``: a Server whose bursts carry 'ms' (compose + publish); ``peers``: {label: Server}
-    whose bursts carry 'compose_ms'. Returns {'ours_ms', 'ours_rounds', label: {'compose_ms',
-    'ratio', 'rounds', 'ratios', 'cells', 'known'}}: medians over the rounds."""
+def duel(ours, peers, rounds=ROUNDS, key='compose_ms'):
+    """``ours``: a Server whose bursts carry 'ms' (compose + publish, or one cold estimation);
+    ``peers``: {label: Server} whose bursts carry ``key``. Returns {'ours_ms', 'ours_rounds',
+    label: {key, 'ratio', 'rounds', 'ratios', 'cells', 'known'}}: medians over the rounds."""
     sides = [('ours', ours)] + sorted(peers.items())
     got = {name: [] for name, _ in sides}
     for r in range(rounds):
@@ -63,9 +64,9 @@ def duel(ours, peers, rounds=ROUNDS):
     mine = [b['ms'] for b in got['ours']]
     out = {'ours_ms': float(np.median(mine)), 'ours_rounds': mine, 'rounds': rounds}
     for name, _ in sides[1:]:
-        theirs = [b['compose_ms'] for b in got[name]]
+        theirs = [b[key] for b in got[name]]
         ratios = [a / b for a, b in zip(mine, theirs) if b > 0]
-        out[name] = {'compose_ms': float(np.median(theirs)), 'rounds': theirs,
+        out[name] = {key: float(np.median(theirs)), 'rounds': theirs,
                      'ratio': float(np.median(ratios)) if ratios else None, 'ratios': ratios,
                      'cells': got[name][-1].get('cells'), 'known': got[name][-1].get('known')}
     return out

@@ -14,8 +14,11 @@
 // With --serve, the driver sets up once, prints {"ready": true}, then times REPS compositions
 // for every line it reads on stdin, until EOF: the benchmark alternates these bursts with ours,
 // so that both sides are measured in the same minutes of this noisy VM.
+// With --estimate CONFIDENCE (and --serve), a burst is REPS estimateTransforms(AKAZE,
+// CONFIDENCE) instead, each a full cycle (m-explore computes every map's features on every
+// call), and prints {"estimate_ms": median of REPS}: cold estimation, measured in pairs too.
 //
-// usage: mexplore_compose [--own CONFIDENCE] [--serve] REPS pgm res ox oy x y yaw [...]
+// usage: mexplore_compose [--own CONFIDENCE | --estimate CONFIDENCE] [--serve] REPS pgm res ox oy x y yaw [...]
 //   pgm res ox oy   a map_server map (image, metres per cell, origin in metres)
 //   x y yaw         pose of that map's frame in the first map's frame (metres, radians)
 // prints {"compose_ms": median of REPS, "cells": merged cells, "known": merged known cells}
@@ -86,14 +89,31 @@ void burst(combine_grids::MergingPipeline& pipe, int reps) {
   fflush(stdout);
 }
 
+// REPS back-to-back estimateTransforms(), each after feeding the maps again as the peer's own
+// merge_maps_mexplore --reps does (feeding not timed): one JSON line with their median.
+void estimate_burst(combine_grids::MergingPipeline& pipe, int reps, double confidence,
+                    const std::vector<nav_msgs::OccupancyGrid::ConstPtr>& grids) {
+  std::vector<double> ms;
+  for (int i = 0; i < reps; ++i) {
+    pipe.feed(grids.begin(), grids.end());
+    auto t0 = std::chrono::steady_clock::now();
+    pipe.estimateTransforms(combine_grids::FeatureType::AKAZE, confidence);
+    ms.push_back(std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
+  }
+  std::sort(ms.begin(), ms.end());
+  printf("{\"estimate_ms\": %.3f}\n", ms[ms.size() / 2]);
+  fflush(stdout);
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
-  bool own = false, serve = false;
+  bool own = false, serve = false, estimate = false;
   double confidence = 1.0;
   while (argc > 1 && argv[1][0] == '-' && argv[1][1] == '-') {
-    if (!strcmp(argv[1], "--own") && argc > 2) {
+    if ((!strcmp(argv[1], "--own") || !strcmp(argv[1], "--estimate")) && argc > 2) {
       own = true;
+      estimate = !strcmp(argv[1], "--estimate");
       confidence = atof(argv[2]);
       argv += 1;
       argc -= 1;
@@ -106,7 +126,7 @@ int main(int argc, char** argv) {
     argc -= 1;
   }
   if (argc < 9 || (argc - 2) % 7 != 0) {
-    fprintf(stderr, "usage: mexplore_compose [--own CONFIDENCE] [--serve] REPS pgm res ox oy x y yaw [...]\n");
+    fprintf(stderr, "usage: mexplore_compose [--own CONFIDENCE | --estimate CONFIDENCE] [--serve] REPS pgm res ox oy x y yaw [...]\n");
     return 2;
   }
   int reps = std::max(1, atoi(argv[1]));
@@ -142,6 +162,13 @@ int main(int argc, char** argv) {
   }
   combine_grids::MergingPipeline pipe;
   pipe.feed(grids.begin(), grids.end());
+  if (estimate) {
+    printf("{\"ready\": true}\n");
+    fflush(stdout);
+    std::string line;
+    while (std::getline(std::cin, line)) estimate_burst(pipe, reps, confidence, grids);
+    return 0;
+  }
   if (own) {
     pipe.estimateTransforms(combine_grids::FeatureType::AKAZE, confidence);
   } else if (!pipe.setTransforms(transforms.begin(), transforms.end())) {

@@ -3,6 +3,7 @@
 
     python3 bench/ours.py SPEC.json          -> one JSON line on stdout
     python3 bench/ours.py --serve SPEC.json  -> compositing bursts on demand (see serve())
+    python3 bench/ours.py --serve-estimate SPEC.json  -> cold estimation cycles on demand
 
 SPEC: {"paths": [map yaml...], "truth": [3x3 pose of map k in map 0's frame] or null,
 "reps": R, "pairs": [[a, b], ...]}. Measures, with the project's defaults (MergeConfig()):
@@ -78,6 +79,20 @@ def _hold(fn, *args):
     time.sleep(0.2)
 
 
+def start_pool(cfg):
+    """Start the merger's worker pool (and import the package in every worker), as the node
+    does once at its first cycle; returns the ms it took."""
+    import multi_map_merge.merger as mm
+    t = time.perf_counter()
+    pool = mm._pool(cfg.workers)
+    if pool is not None:
+        from multi_map_merge.pairs import compute_features
+        tiny = np.zeros((8, 8), np.uint8)
+        n = mm._POOL_SIZE
+        list(pool.map(_hold, [compute_features] * n, [cfg] * n, [tiny] * n))
+    return (time.perf_counter() - t) * 1000.0
+
+
 def score(placements, truth, n):
     """Per placed robot (reference excluded): (translation error m, rotation error deg)."""
     from multi_map_merge.transforms import pose_distance
@@ -125,9 +140,32 @@ def serve(spec):
         print(json.dumps(compose_burst(m)), flush=True)
 
 
+def serve_estimate(spec):
+    """Start the worker pool, print {"ready": true}, then for every line read on stdin one cold
+    estimation cycle (a new MapMerger holding every map, as in main()), printed as {"ms": ...,
+    "placed": ...}: bench/duel.py alternates these cycles with m-explore's estimateTransforms()."""
+    from multi_map_merge.config import MergeConfig
+    from multi_map_merge.mapio import load_map
+    from multi_map_merge.merger import MapMerger
+    cfg = MergeConfig()
+    grids = [load_map(p) for p in spec['paths']]
+    start_pool(cfg)
+    print(json.dumps({'ready': True}), flush=True)
+    for _ in sys.stdin:
+        m = MapMerger(cfg)
+        for k, g in enumerate(grids):
+            m.update_map('r%02d' % k, g)
+        t = time.perf_counter()
+        m.estimate()
+        ms = (time.perf_counter() - t) * 1000.0
+        print(json.dumps({'ms': ms, 'placed': len(m.placements()) - 1}), flush=True)
+
+
 def main():
     if sys.argv[1] == '--serve':
         return serve(json.load(open(sys.argv[2])))
+    if sys.argv[1] == '--serve-estimate':
+        return serve_estimate(json.load(open(sys.argv[2])))
     spec = json.load(open(sys.argv[1]))
     from multi_map_merge.config import MergeConfig
     from multi_map_merge.features import FeatureExtractor
@@ -175,14 +213,7 @@ def main():
 
     # The node starts its worker pool once, at its first cycle: start it (and import the
     # package in every worker) outside the timed cold cycle, and report that cost apart.
-    t = time.perf_counter()
-    pool = mm._pool(cfg.workers)
-    if pool is not None:
-        from multi_map_merge.pairs import compute_features
-        tiny = np.zeros((8, 8), np.uint8)
-        n = mm._POOL_SIZE
-        list(pool.map(_hold, [compute_features] * n, [cfg] * n, [tiny] * n))
-    pool_start = (time.perf_counter() - t) * 1000.0
+    pool_start = start_pool(cfg)
 
     # full cycle: cold (new merger: no feature, pair or wall cache of its own), warm (unchanged
     # maps), compositing, publishing

@@ -11,7 +11,9 @@ Its tool prints only the median estimation and compositing times of a whole run,
                       library, built here against the peer's build) in bursts alternated with
                       ours (bench/duel.py): on its own estimate, and on the poses our merger
                       found (the same output: where its own estimate is wrong, its compositing
-                      time is that of another output).
+                      time is that of another output);
+  paired estimation = its estimateTransforms(), timed by the same driver, one cycle per burst
+                      alternated with one cold cycle of ours (bench/duel.py).
 Nothing of m-explore is part of the project; when ../shared is absent every call here says so.
 """
 from __future__ import annotations
@@ -112,11 +114,19 @@ class Peer:
         pose of map k's frame in map 0's frame, metres and radians; map 0 is the reference), or,
         without poses, of m-explore's own estimate (estimateTransforms once, ``own_confidence``
         as merge_maps_mexplore's default)."""
+        return self._driver_cmd((['--own', repr(own_confidence)] if poses is None else []), paths, reps, poses)
+
+    def estimate_cmd(self, paths, reps, confidence=1.0):
+        """Command line of bench/mexplore_compose.cpp serving estimation bursts (bench/duel.py)
+        of ``reps`` estimateTransforms() each, as merge_maps_mexplore times them."""
+        return self._driver_cmd(['--estimate', repr(confidence)], paths, reps, None)
+
+    def _driver_cmd(self, flags, paths, reps, poses):
         import yaml
         exe = os.path.join(self.root, 'mexplore_compose')
         if not os.path.exists(exe):
             _build_driver(exe)
-        args = [exe] + (['--own', repr(own_confidence)] if poses is None else []) + ['--serve', str(reps)]
+        args = [exe] + list(flags) + ['--serve', str(reps)]
         for k, path in enumerate(paths):
             pose = [0.0, 0.0, 0.0] if poses is None else poses.get(str(k), poses.get(k))
             if pose is None:

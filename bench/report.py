@@ -6,6 +6,9 @@ import platform
 import time
 
 TOL_M, TOL_DEG = 0.5, 3.0   # a placement within these of the truth counts as correct
+PAIR_ESTIMATE_S = 5.0       # cold estimation is also measured in pairs (bench/duel.py, 11 rounds of
+# one cycle each side) where m-explore's cycle is shorter than this; the longer rows (edmonton,
+# 16 robots: 20-50 s a cycle) are far from the 0.5x line (0.04-0.11x)
 
 
 def machine():
@@ -64,6 +67,17 @@ def compose_cells(r):
     return d['ours_ms'], pick('own'), pick('same_output')
 
 
+def cold_cells(r):
+    """(ours, m-explore, ratio, paired) of a row's cold estimation: the paired figures of
+    bench/duel.py (medians of the rounds, the ratio the median of the rounds' ratios) when the
+    row was paired, else each side's own runs."""
+    d = r.get('estimate') or {}
+    if d.get('mexplore'):
+        return d['ours_ms'], d['mexplore']['estimate_ms'], d['mexplore']['ratio'], True
+    a, b = r['ours']['cold_ms'], r['peer'].get('estimate_ms')
+    return a, b, _r(a, b), False
+
+
 def rows_table(rows, peer_note):
     """The two printed tables (time; memory and correctness) as one string."""
     out = []
@@ -74,8 +88,10 @@ def rows_table(rows, peer_note):
     h = '%-16s %5s %3s | %-21s | %-21s | %-24s | %-18s | %-26s | %-14s' % cols
     out += ['', 'TIME  (each cell: ours / m-explore = ratio; ratio < 1: we are faster. compose: '
             'ours + publishing against m-explore\'s compositing of its own merge; same output: its '
-            'compositing of the maps at our poses, ms = ratio. Compositing is measured in pairs, '
-            'burst after burst (bench/duel.py): medians of the rounds and of their ratios)',
+            'compositing of the maps at our poses, ms = ratio. Compositing and, where m-explore\'s '
+            'cycle is under %.0f s, cold estimation are measured in pairs, burst after burst '
+            '(bench/duel.py): medians of the rounds and of their ratios; * = cold estimation not '
+            'paired, one set of runs each)' % (PAIR_ESTIMATE_S,),
             h, '-' * len(h)]
     for r in rows:
         o, p = r['ours'], r['peer']
@@ -83,10 +99,11 @@ def rows_table(rows, peer_note):
         def trip(a, b, fa='%.1f', fb='%.1f'):
             return '%s / %s = %s' % (_f(a, fa), _f(b, fb), _f(_r(a, b), '%.2fx'))
         cp, own, same = compose_cells(r)
+        ca, cb, cr, paired = cold_cells(r)
         out.append('%-16s %5s %3d | %-21s | %-21s | %-24s | %-18s | %-26s | %-14s' % (
             r['name'], '%dk' % (o['map_cells'] // 1000), r['robots'],
             trip(o['features_ms'], p.get('features_ms')), trip(o['pair_ms'], p.get('pair_ms'), '%.0f', '%.0f'),
-            trip(o['cold_ms'], p.get('estimate_ms'), '%.0f', '%.0f'),
+            '%s / %s = %s%s' % (_f(ca), _f(cb), _f(cr, '%.2fx'), '' if paired or cb is None else '*'),
             trip(o['warm_ms'], p.get('estimate_ms'), '%.2f', '%.0f'),
             '%s / %s = %s' % (_f(cp, '%.1f'), _f(own[0], '%.1f'), _f(own[1], '%.2fx')),
             '%s = %s' % (_f(same[0], '%.1f'), _f(same[1], '%.2fx'))))
@@ -129,8 +146,10 @@ def plot(rows, path):
             a.plot(*zip(*pts), style, label=label)
 
     n = lambda r: r['robots']  # noqa: E731
-    series(ax[0], sweep, n, 'ours', 'cold_ms', 'o-', 'ours: estimation, cold')
-    series(ax[0], sweep, n, 'peer', 'estimate_ms', 'o--', 'm-explore: estimation')
+    for k, style, label in ((0, 'o-', 'ours: estimation, cold'), (1, 'o--', 'm-explore: estimation')):
+        pts = [(n(r), cold_cells(r)[k]) for r in sweep if cold_cells(r)[k] is not None]
+        if pts:
+            ax[0].plot(*zip(*pts), style, label=label)
     series(ax[0], sweep, n, 'ours', 'warm_ms', 'd-', 'ours: estimation, warm')
     for k, style, label in ((0, 's-', 'ours: compositing + publishing'),
                             (1, 's--', 'm-explore: compositing'),
@@ -144,14 +163,17 @@ def plot(rows, path):
     ax[0].set_title('time against robot count')
 
     cells = lambda r: r['ours']['map_cells']  # noqa: E731
-    series(ax[1], sizes, cells, 'ours', 'cold_ms', 'o-', 'ours: estimation (4 robots), cold')
-    series(ax[1], sizes, cells, 'peer', 'estimate_ms', 'o--', 'm-explore: estimation (4 robots)')
+    for k, style, label in ((0, 'o-', 'ours: estimation (4 robots), cold'),
+                            (1, 'o--', 'm-explore: estimation (4 robots)')):
+        pts = [(cells(r), cold_cells(r)[k]) for r in sizes if cold_cells(r)[k] is not None]
+        if pts:
+            ax[1].plot(*zip(*pts), style, label=label)
     series(ax[1], sizes, cells, 'ours', 'pair_ms', '^-', 'ours: one pair')
     series(ax[1], sizes, cells, 'peer', 'pair_ms', '^--', 'm-explore: one pair')
     series(ax[1], sizes, cells, 'ours', 'features_ms', 'v-', 'ours: features of one map')
     series(ax[1], sizes, cells, 'peer', 'features_ms', 'v--', 'm-explore: features of one map')
     for r in sizes:
-        ax[1].annotate(r['name'].split()[0], (cells(r), r['ours']['cold_ms']), fontsize=8)
+        ax[1].annotate(r['name'].split()[0], (cells(r), cold_cells(r)[0]), fontsize=8)
     ax[1].set_xscale('log')
     ax[1].set_xlabel('cells per robot map (median)')
     ax[1].set_title('time against map size')

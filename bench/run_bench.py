@@ -75,6 +75,22 @@ def compose_duel(paths, pr, reps, own, root):
             s.close()
 
 
+def estimate_duel(paths, pr, root):
+    """Cold estimation in pairs (bench/duel.py): one cold cycle of ours (a new merger, workers
+    started) against one estimateTransforms() of m-explore, round after round."""
+    spec = os.path.join(root, 'serve_%d.json' % len(os.listdir(root)))
+    with open(spec, 'w') as f:
+        json.dump({'paths': paths}, f)
+    ours = duel.Server([sys.executable, os.path.join(HERE, 'ours.py'), '--serve-estimate', spec])
+    peers = {}
+    try:
+        peers['mexplore'] = duel.Server(pr.estimate_cmd(paths, 1), peer.ENV)
+        return duel.duel(ours, peers, key='estimate_ms')
+    finally:
+        for s in [ours] + list(peers.values()):
+            s.close()
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     ap.add_argument('--quick', action='store_true', help='fewer, smaller configurations (about a minute)')
@@ -112,15 +128,17 @@ def main():
             p = pr.measure(paths, truth, cycles, [tuple(x) for x in pairs], full=full)
             p['reps'] = cycles
             comp = compose_duel(paths, pr, ours['compose_reps'], full, root)
+            short = p.get('estimate_ms') is not None and p['estimate_ms'] < report.PAIR_ESTIMATE_S * 1000.0
+            est = estimate_duel(paths, pr, root) if short else None
             if not full:
                 p['skipped'] = 'full run skipped above %d robots (m-explore x16 takes ~50 s)' % a.peer_max_robots
             p['bench_s'] = time.time() - t0
         else:
             p = {'skipped': note}
-            comp = None
+            comp = est = None
         ours['bench_s'] = t_ours
         rows.append({'name': name, 'kind': kind, 'robots': n, 'reps': reps, 'cycles': cycles, 'pairs': pairs,
-                     'ours': ours, 'peer': p, 'compose': comp})
+                     'ours': ours, 'peer': p, 'compose': comp, 'estimate': est})
         print('.. %-16s ours: cold %7.0f ms (%.0f s)   m-explore: %s ms (%s s)' % (
             name, ours['cold_ms'], t_ours, report._f(p.get('estimate_ms')), report._f(p.get('bench_s'))),
             flush=True)
