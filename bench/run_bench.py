@@ -56,14 +56,25 @@ def run_ours(paths, truth, runs, pairs, root, reps):
     return out
 
 
+def _serve(paths, root, flag):
+    """bench/ours.py serving ``flag`` (--serve: compositing, --serve-estimate: cold cycles) on
+    the maps ``paths``, as a duel.Server."""
+    spec = os.path.join(root, 'serve_%d.json' % len(os.listdir(root)))
+    with open(spec, 'w') as f:
+        json.dump({'paths': paths}, f)
+    return duel.Server([sys.executable, os.path.join(HERE, 'ours.py'), flag, spec])
+
+
+def _close(servers):
+    for s in servers:
+        s.close()
+
+
 def compose_duel(paths, pr, reps, own, root):
     """Compositing in pairs (bench/duel.py): our compose + publish against m-explore's
     composeGrids() on the maps at our poses ('same_output') and, when ``own``, on its own
     estimate ('own')."""
-    spec = os.path.join(root, 'serve_%d.json' % len(os.listdir(root)))
-    with open(spec, 'w') as f:
-        json.dump({'paths': paths}, f)
-    ours = duel.Server([sys.executable, os.path.join(HERE, 'ours.py'), '--serve', spec])
+    ours = _serve(paths, root, '--serve')
     peers = {}
     try:
         peers['same_output'] = duel.Server(pr.compose_cmd(paths, reps, poses=ours.ready['poses']), peer.ENV)
@@ -71,24 +82,19 @@ def compose_duel(paths, pr, reps, own, root):
             peers['own'] = duel.Server(pr.compose_cmd(paths, reps), peer.ENV)
         return duel.duel(ours, peers)
     finally:
-        for s in [ours] + list(peers.values()):
-            s.close()
+        _close([ours] + list(peers.values()))
 
 
 def estimate_duel(paths, pr, root):
     """Cold estimation in pairs (bench/duel.py): one cold cycle of ours (a new merger, workers
     started) against one estimateTransforms() of m-explore, round after round."""
-    spec = os.path.join(root, 'serve_%d.json' % len(os.listdir(root)))
-    with open(spec, 'w') as f:
-        json.dump({'paths': paths}, f)
-    ours = duel.Server([sys.executable, os.path.join(HERE, 'ours.py'), '--serve-estimate', spec])
+    ours = _serve(paths, root, '--serve-estimate')
     peers = {}
     try:
         peers['mexplore'] = duel.Server(pr.estimate_cmd(paths, 1), peer.ENV)
         return duel.duel(ours, peers, key='estimate_ms')
     finally:
-        for s in [ours] + list(peers.values()):
-            s.close()
+        _close([ours] + list(peers.values()))
 
 
 def main():
