@@ -161,14 +161,14 @@ int main(int argc, char** argv) {
     grids.push_back(g);
   }
   combine_grids::MergingPipeline pipe;
-  pipe.feed(grids.begin(), grids.end());
-  if (estimate) {
+  if (estimate) {   // every burst feeds the maps itself
     printf("{\"ready\": true}\n");
     fflush(stdout);
     std::string line;
     while (std::getline(std::cin, line)) estimate_burst(pipe, reps, confidence, grids);
     return 0;
   }
+  pipe.feed(grids.begin(), grids.end());
   if (own) {
     pipe.estimateTransforms(combine_grids::FeatureType::AKAZE, confidence);
   } else if (!pipe.setTransforms(transforms.begin(), transforms.end())) {
