@@ -10,6 +10,7 @@ import math
 from dataclasses import dataclass
 from typing import Dict, Optional, Tuple
 
+import cv2
 import numpy as np
 
 from . import estimate as est
@@ -123,6 +124,11 @@ def _field(p: PairInput) -> WallField:
     return _derived('field', p, lambda p: WallField(p.levels))
 
 
+def _walls(p: PairInput, tolerance: int) -> est.Walls:
+    """A map's walls for verification (needed where it is a pair's parent only)."""
+    return _derived('walls/%d' % tolerance, p, lambda p: est.Walls.of(p.levels, tolerance))
+
+
 def _wall_points(p: PairInput) -> np.ndarray:
     """Wall cells of a map (ICP source points, where it is a pair's child)."""
     return _derived('points', p, lambda p: occupied_points(p.levels, _known(p)[0]))
@@ -188,6 +194,7 @@ def _estimate_crops(config: MergeConfig, pa: PairInput, ch: PairInput, seed: int
                             c.ransac_hypotheses, min_count=max(2, int(0.7 * c.min_inliers)))
     lv_a, lv_b = pa.levels, ch.levels
     boxes = (_known(pa)[0], _known(ch)[0])
+    walls = _walls(pa, c.agreement_tolerance)
     # Score every hypothesis on the grids first (cheap), then polish only the promising ones
     # by ICP (the costly step) and score them again.
     scored = []
@@ -195,7 +202,7 @@ def _estimate_crops(config: MergeConfig, pa: PairInput, ch: PairInput, seed: int
         inl = int(mask.sum())
         if inl < c.min_inliers:
             continue
-        ag, _ = est.agreement(lv_a, lv_b, A, c.agreement_tolerance, boxes)
+        ag, _ = est.agreement(lv_a, lv_b, A, c.agreement_tolerance, boxes, walls)
         scored.append((ag, inl, A))
     scored.sort(key=lambda t: (t[0], t[1]), reverse=True)
     best: Optional[est.PairEstimate] = None
@@ -214,7 +221,7 @@ def _estimate_crops(config: MergeConfig, pa: PairInput, ch: PairInput, seed: int
             h.A = refined(c, pa, ch, A)
         good_inl = int(est._inliers(h.A, src[unique], dst[unique], th2).sum()) if r.matches else 0
         h.reliability = good_inl / float(max(1, r.matches))
-        h.agreement, h.overlap = est.agreement(lv_a, lv_b, h.A, c.agreement_tolerance, boxes)
+        h.agreement, h.overlap = est.agreement(lv_a, lv_b, h.A, c.agreement_tolerance, boxes, walls)
         contradiction = contradicts_prior(c, pa, ch, h.A)
         if contradiction:
             h.reason = contradiction
@@ -248,8 +255,11 @@ def _known_centre(levels: np.ndarray, box) -> Optional[np.ndarray]:
     if box is None:
         return None
     r0, r1, c0, c1 = box
-    rr, cc = np.nonzero(levels[r0:r1, c0:c1])
-    return np.array([[cc.mean() + c0, rr.mean() + r0]]) if rr.size else None
+    # image moments of the known mask: a third of the cost of averaging its cells' indices
+    mo = cv2.moments((levels[r0:r1, c0:c1] > 0).view(np.uint8), True)
+    if mo['m00'] <= 0:
+        return None
+    return np.array([[mo['m10'] / mo['m00'] + c0, mo['m01'] / mo['m00'] + r0]])
 
 
 def _apart(A: np.ndarray, B: np.ndarray, centre: np.ndarray, resolution: float) -> Tuple[float, float]:

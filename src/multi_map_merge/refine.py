@@ -14,7 +14,7 @@ import cv2
 import numpy as np
 
 from .grid import OCCUPIED, known_bbox
-from .transforms import apply, rigid_from_points
+from .transforms import rigid_from_xy
 
 
 WALL_FIELD_MARGIN = 4   # cells beyond the known box where nearest walls are still looked up
@@ -39,24 +39,23 @@ class WallField:
             src, cv2.DIST_L2, 5, labelType=cv2.DIST_LABEL_PIXEL)
         # Labels number the zero (occupied) pixels in raster order, from 1.
         rr, cc = np.nonzero(occ)
-        # nearest wall cell per label, in the grid's cells (label 0: none)
-        self.nearest = np.zeros((rr.size + 1, 2), np.float64)
-        self.nearest[1:, 0] = cc + c0
-        self.nearest[1:, 1] = rr + r0
-        # flat tables with one extra entry past the end for points outside the box (no wall)
+        # flat per-cell tables with one extra entry past the end for points outside the box
+        # (no wall: infinitely far, label 0), and the wall cell of each label (grid's cells)
         self.dist_flat = np.append(dist.ravel(), np.float32(np.inf))
         self.labels_flat = np.append(labels.ravel(), 0).astype(np.int32)
+        self.wall_x = np.append(np.float64(-1.0), cc + float(c0))
+        self.wall_y = np.append(np.float64(-1.0), rr + float(r0))
         self.shape = occ.shape
 
-    def lookup(self, pts: np.ndarray):
-        """For (N, 2) cell points: (valid mask, distance cells, nearest wall cell (N, 2))."""
+    def index(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Flat table index of the cells nearest to points (x, y) (cells; the past-the-end
+        entry for points outside the box)."""
         h, w = self.shape
-        x = np.rint(pts[:, 0] - self.offset[0]).astype(np.int64)
-        y = np.rint(pts[:, 1] - self.offset[1]).astype(np.int64)
+        ix = np.rint(x - self.offset[0]).astype(np.int64)
+        iy = np.rint(y - self.offset[1]).astype(np.int64)
         # unsigned compare: negative coordinates wrap to huge values and fail too
-        valid = (x.astype(np.uint64) < w) & (y.astype(np.uint64) < h)
-        idx = np.where(valid, y * w + x, h * w)
-        return valid, self.dist_flat.take(idx), self.nearest.take(self.labels_flat.take(idx), axis=0)
+        valid = (ix.astype(np.uint64) < w) & (iy.astype(np.uint64) < h)
+        return np.where(valid, iy * w + ix, h * w)
 
 
 def occupied_points(levels: np.ndarray, box: Optional[Tuple[int, int, int, int]] = None,
@@ -93,16 +92,22 @@ def refine(field: WallField, src_pts: np.ndarray, A: np.ndarray, max_distance: f
     # the wide gates only bring the walls within reach: a third of the points does that as
     # well (most iterations happen there); the tight gates that set the result use them all
     coarse = src_pts[::3] if src_pts.shape[0] >= 30 * min_pairs else src_pts
+    # x and y as separate contiguous arrays: each iteration is then a few passes over them
+    xy_all = (np.ascontiguousarray(src_pts[:, 0]), np.ascontiguousarray(src_pts[:, 1]))
+    xy_coarse = (np.ascontiguousarray(coarse[:, 0]), np.ascontiguousarray(coarse[:, 1]))
     for k, gate in enumerate(gates):
-        pts = coarse if gate > 1.5 else src_pts
-        need = min_pairs * pts.shape[0] // src_pts.shape[0]   # the same share of the walls
+        x, y = xy_coarse if gate > 1.5 else xy_all
+        need = min_pairs * x.size // src_pts.shape[0]   # the same share of the walls
         for _ in range(iterations):
-            p = apply(cur, pts)
-            valid, d, near = field.lookup(p)
-            sel = np.flatnonzero(valid & (d <= gate))   # (take() beats boolean indexing 4x)
+            px = cur[0, 0] * x + cur[0, 1] * y + cur[0, 2]
+            py = cur[1, 0] * x + cur[1, 1] * y + cur[1, 2]
+            idx = field.index(px, py)
+            # (outside the box the distance is infinite; take() beats boolean indexing 4x)
+            sel = np.flatnonzero(field.dist_flat.take(idx) <= gate)
             if sel.size < need:
                 return cur if k > 0 else None
-            step = rigid_from_points(p.take(sel, axis=0), near.take(sel, axis=0))
+            lab = field.labels_flat.take(idx.take(sel))
+            step = rigid_from_xy(px.take(sel), py.take(sel), field.wall_x.take(lab), field.wall_y.take(lab))
             cur = step @ cur
             if abs(step[0, 2]) < 0.01 and abs(step[1, 2]) < 0.01 and abs(step[1, 0]) < 1e-4:
                 break

@@ -84,22 +84,30 @@ def pose_to_image(T_ref_k: np.ndarray, res_ref: float, origin_ref: Sequence[floa
 
 
 def rigid_from_points(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
-    """Least-squares rigid 3x3 (rotation + translation, det +1) with dst ~ R src + t.
+    """Least-squares rigid 3x3 (rotation + translation, det +1) with dst ~ R src + t, for
+    (N, 2) point arrays."""
+    src, dst = np.asarray(src, np.float64), np.asarray(dst, np.float64)
+    return rigid_from_xy(src[:, 0], src[:, 1], dst[:, 0], dst[:, 1])
+
+
+def rigid_from_xy(sx: np.ndarray, sy: np.ndarray, dx: np.ndarray, dy: np.ndarray) -> np.ndarray:
+    """:func:`rigid_from_points` of points given as coordinate arrays (N,) (src x, y; dst x, y).
 
     In 2D the best rotation has a closed form (the angle of the cross-covariance), no SVD:
-    this runs inside RANSAC and ICP loops hundreds of times per pair. The sums are BLAS
-    products: numpy's column sums of an (N, 2) array (``sum(axis=0)``) cost several times
-    more, and this is called thousands of times per cycle."""
-    src, dst = np.asarray(src, np.float64), np.asarray(dst, np.float64)
-    n = src.shape[0]
-    ones = np.ones(n)
-    ss, sd = ones @ src, ones @ dst
-    K = src.T @ dst - np.outer(ss, sd) / n   # [[sxx, sxy], [syx, syy]], about the means
-    ms, md = ss / n, sd / n
-    th = math.atan2(K[0, 1] - K[1, 0], K[0, 0] + K[1, 1])
+    this runs inside RANSAC and ICP loops hundreds of times per pair, so the sums are dot
+    products of 1-D arrays (numpy's column sums of an (N, 2) array cost several times more)."""
+    n = sx.shape[0]
+    ssx, ssy, sdx, sdy = sx.sum(), sy.sum(), dx.sum(), dy.sum()
+    # cross-covariance about the means
+    kxx = sx @ dx - ssx * sdx / n
+    kxy = sx @ dy - ssx * sdy / n
+    kyx = sy @ dx - ssy * sdx / n
+    kyy = sy @ dy - ssy * sdy / n
+    th = math.atan2(kxy - kyx, kxx + kyy)
     c, s = math.cos(th), math.sin(th)
-    return np.array([[c, -s, md[0] - (c * ms[0] - s * ms[1])],
-                     [s, c, md[1] - (s * ms[0] + c * ms[1])],
+    msx, msy, mdx, mdy = ssx / n, ssy / n, sdx / n, sdy / n
+    return np.array([[c, -s, mdx - (c * msx - s * msy)],
+                     [s, c, mdy - (s * msx + c * msy)],
                      [0.0, 0.0, 1.0]])
 
 
