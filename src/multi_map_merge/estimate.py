@@ -107,6 +107,8 @@ def ransac_rigid(src: np.ndarray, dst: np.ndarray, threshold: float, iterations:
     # the best few hundred on all of them (the ranking at the top is what matters).
     sub = rng.choice(n, 400, replace=False) if n > 400 else np.arange(n)
     terms_sub = _match_terms(src[sub], dst[sub])
+    # coordinates as separate contiguous arrays: the samples index them by the thousand
+    px, py, qx, qy = (np.ascontiguousarray(v) for v in (src[:, 0], src[:, 1], dst[:, 0], dst[:, 1]))
     C, S, TX, TY, ANG, PRE = [], [], [], [], [], []
     drawn, batch = 0, 3000
     while drawn < iterations:
@@ -114,20 +116,20 @@ def ransac_rigid(src: np.ndarray, dst: np.ndarray, threshold: float, iterations:
         drawn += m
         i = rng.integers(0, n, m)
         j = rng.integers(0, n, m)
-        dp = src[j] - src[i]
-        dq = dst[j] - dst[i]
-        lp = np.hypot(dp[:, 0], dp[:, 1])
-        lq = np.hypot(dq[:, 0], dq[:, 1])
+        dpx, dpy = px.take(j) - px.take(i), py.take(j) - py.take(i)
+        dqx, dqy = qx.take(j) - qx.take(i), qy.take(j) - qy.take(i)
+        lp = np.hypot(dpx, dpy)
+        lq = np.hypot(dqx, dqy)
         # A rigid motion keeps lengths: a sample whose two lengths differ cannot be right.
-        ok = (lp > 4 * threshold) & (np.abs(lp - lq) < threshold)
-        i, j, dp, dq = i[ok], j[ok], dp[ok], dq[ok]
-        if i.size:
-            ang = np.arctan2(dq[:, 1], dq[:, 0]) - np.arctan2(dp[:, 1], dp[:, 0])
+        ok = np.flatnonzero((lp > 4 * threshold) & (np.abs(lp - lq) < threshold))
+        if ok.size:
+            i, j = i.take(ok), j.take(ok)
+            ang = np.arctan2(dqy.take(ok), dqx.take(ok)) - np.arctan2(dpy.take(ok), dpx.take(ok))
             c, s_ = np.cos(ang), np.sin(ang)
-            mp = 0.5 * (src[i] + src[j])
-            mq = 0.5 * (dst[i] + dst[j])
-            tx = mq[:, 0] - (c * mp[:, 0] - s_ * mp[:, 1])
-            ty = mq[:, 1] - (s_ * mp[:, 0] + c * mp[:, 1])
+            mpx, mpy = 0.5 * (px.take(i) + px.take(j)), 0.5 * (py.take(i) + py.take(j))
+            mqx, mqy = 0.5 * (qx.take(i) + qx.take(j)), 0.5 * (qy.take(i) + qy.take(j))
+            tx = mqx - (c * mpx - s_ * mpy)
+            ty = mqy - (s_ * mpx + c * mpy)
             pre = np.empty(c.size, np.int64)
             hyp = _hypothesis_terms(c, s_, tx, ty)
             for k0 in range(0, c.size, 1024):  # chunks keep the (hypotheses x matches) block small

@@ -648,11 +648,30 @@ _POOL_SIZE = 0
 
 
 def _worker_init() -> None:
-    """One OpenCV thread per worker: the pool already keeps every core busy, and OpenCV's own
-    threads on top of it only contend (AKAZE on a house map: 14 ms with two threads alone,
-    but two workers each running two threads are slower than two workers with one each)."""
+    """One OpenCV thread and one BLAS thread per worker: the pool already keeps every core
+    busy, and the libraries' own threads on top of it only contend (AKAZE on a house map:
+    14 ms with two threads alone, but two workers each running two threads are slower than
+    two workers with one each)."""
     import cv2
     cv2.setNumThreads(1)
+    _one_blas_thread()
+
+
+def _one_blas_thread() -> None:
+    """numpy's BLAS to one thread in this process where it is OpenBLAS (Debian's libblas.so.3
+    once libopenblas is installed). RANSAC scores hypotheses by matrix products, and
+    OpenBLAS's threads spin after each one: two workers with two BLAS threads each took 10%
+    more CPU per house cycle than with one (measured). Other BLAS builds are left as they are."""
+    import ctypes
+    for name in ('libblas.so.3', 'libopenblas.so.0'):
+        try:
+            lib = ctypes.CDLL(name)
+        except OSError:
+            continue
+        set_threads = getattr(lib, 'openblas_set_num_threads', None)
+        if set_threads is not None:
+            set_threads(1)
+            return
 
 
 def _pool(workers: int):
