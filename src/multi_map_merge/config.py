@@ -36,6 +36,8 @@ class MergeConfig:
     min_matches: int = 10
     min_inliers: int = 10
     min_reliability: float = 0.0             # inlier ratio below this is never used
+    few_inliers: int = 21                    # a link with fewer RANSAC inliers than this ...
+    few_inliers_min_agreement: float = 0.96  # ... must verify at least this well; 0 = off
     replace_margin: float = 0.02             # a new transform must beat the kept one by this
     # --- verification on the grids (beyond the paper) ---
     refine: bool = True                      # ICP of wall cells after RANSAC
