@@ -52,7 +52,9 @@ class Server:
 
 
 def duel(ours, peers, rounds=ROUNDS, key='compose_ms'):
-    """``ours``: a Server whose bursts carry 'ms' (compose + publish, or one cold estimation);
+    """``ours``: a Server whose bursts carry 'ms' (compose + publish, or one cold estimation)
+    and, for compositing, 'live_ms' (compose + publish with one robot's map changed: its
+    ratio to the peer's full compositing of the same round is 'live_ratio');
     ``peers``: {label: Server} whose bursts carry ``key``. Returns {'ours_ms', 'ours_rounds',
     label: {key, 'ratio', 'rounds', 'ratios', 'cells', 'known'}}: medians over the rounds."""
     sides = [('ours', ours)] + sorted(peers.items())
@@ -62,11 +64,16 @@ def duel(ours, peers, rounds=ROUNDS, key='compose_ms'):
         for name, srv in sides[k:] + sides[:k]:
             got[name].append(srv.burst())
     mine = [b['ms'] for b in got['ours']]
-    out = {'ours_ms': float(np.median(mine)), 'ours_rounds': mine, 'rounds': rounds}
+    live = [b.get('live_ms') for b in got['ours']]
+    live = live if None not in live else None
+    out = {'ours_ms': float(np.median(mine)), 'ours_rounds': mine, 'rounds': rounds,
+           'ours_live_ms': float(np.median(live)) if live else None}
     for name, _ in sides[1:]:
         theirs = [b[key] for b in got[name]]
         ratios = [a / b for a, b in zip(mine, theirs) if b > 0]
+        live_ratios = [a / b for a, b in zip(live, theirs) if b > 0] if live else []
         out[name] = {key: float(np.median(theirs)), 'rounds': theirs,
                      'ratio': float(np.median(ratios)) if ratios else None, 'ratios': ratios,
+                     'live_ratio': float(np.median(live_ratios)) if live_ratios else None,
                      'cells': got[name][-1].get('cells'), 'known': got[name][-1].get('known')}
     return out

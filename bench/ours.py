@@ -24,6 +24,8 @@ SPEC: {"paths": [map yaml...], "truth": [3x3 pose of map k in map 0's frame] or 
   compose_ms    compose() with every map warped again, COMPOSE_REPS times back to back as
                 m-explore's driver times its composeGrids(), median: how m-explore's figure
                 is measured
+  live_ms       compose() + publishing with one robot's map changed, the others' warps kept
+                (round robin over the robots but the reference), COMPOSE_REPS times, median
   publish_ms    ros_adapter.grid_to_msg (numpy_msg OccupancyGrid) + msg.serialize(BytesIO) of
                 the merged grid, COMPOSE_REPS times back to back, median (publish_first_ms: once
                 per cycle, after the first compose)
@@ -109,7 +111,10 @@ def score(placements, truth, n):
 
 def compose_burst(m):
     """COMPOSE_REPS back-to-back compose() + publishing of ``m``'s merged map, every map warped
-    again each time (as m-explore's composeGrids() warps them): medians in ms."""
+    again each time (as m-explore's composeGrids() warps them): medians in ms. Then as many
+    with one robot's map changed (round robin over the robots but the reference, its patch
+    dropped as a new map of it drops it), every other patch kept: a live cycle's compositing
+    when one robot's gmapping map arrived ('live_ms', compose + publish)."""
     comp, pub = [], []
     for _ in range(COMPOSE_REPS):
         m._patches.clear()
@@ -118,8 +123,17 @@ def compose_burst(m):
         merged = m.compose()
         comp.append(time.perf_counter() - t)
         pub.append(publish(merged)[0])
+    others = sorted(n for n in m.placements() if n != m._reference)
+    live = []
+    for k in range(COMPOSE_REPS if others else 0):
+        m._patches.pop(others[k % len(others)], None)
+        t = time.perf_counter()
+        merged = m.compose()
+        dt = time.perf_counter() - t
+        live.append(dt + publish(merged)[0])
     return {'compose_ms': float(np.median(comp)) * 1000.0, 'publish_ms': float(np.median(pub)) * 1000.0,
-            'ms': float(np.median(np.add(comp, pub))) * 1000.0}
+            'ms': float(np.median(np.add(comp, pub))) * 1000.0,
+            'live_ms': float(np.median(live)) * 1000.0 if live else None}
 
 
 def serve(spec):
@@ -247,7 +261,7 @@ def main():
         'features_ms': med(feat), 'pair_ms': med(pair), 'cold_ms': med(cold), 'warm_ms': med(warm),
         'cold_first_ms': cold[0] * 1000.0, 'pool_start_ms': pool_start,
         'ingest_ms': med(ingest), 'compose_first_ms': med(comp), 'compose_ms': b2b['compose_ms'], 'compose_again_ms': med(comp_again),
-        'publish_first_ms': med(pub), 'publish_ms': b2b['publish_ms'],
+        'publish_first_ms': med(pub), 'publish_ms': b2b['publish_ms'], 'live_ms': b2b['live_ms'],
         'published_bytes': published_bytes,
         'rss_mb': resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0 + worker_peaks_mb(),
         'rss_self_mb': resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,

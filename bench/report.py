@@ -57,14 +57,16 @@ def _f(v, fmt='%.0f'):
 
 def compose_cells(r):
     """(ours: compose + publish ms, (m-explore on its own merge: ms, ratio), (on our poses: ms,
-    ratio)) of a row: the paired figures of bench/duel.py (each ratio the median of the rounds'
-    ratios); without m-explore, ours from bench/ours.py and no peer figures."""
+    ratio), (ours with one robot's map changed: ms, ratio to m-explore on its own merge)) of a
+    row: the paired figures of bench/duel.py (each ratio the median of the rounds' ratios);
+    without m-explore, ours from bench/ours.py and no peer figures."""
     d = r.get('compose') or {}
     if not d:
         o = r['ours']
-        return o['compose_ms'] + o['publish_ms'], (None, None), (None, None)
+        return o['compose_ms'] + o['publish_ms'], (None, None), (None, None), (o.get('live_ms'), None)
     pick = lambda k: (d[k]['compose_ms'], d[k]['ratio']) if d.get(k) else (None, None)  # noqa: E731
-    return d['ours_ms'], pick('own'), pick('same_output')
+    live = (d.get('ours_live_ms'), (d.get('own') or {}).get('live_ratio'))
+    return d['ours_ms'], pick('own'), pick('same_output'), live
 
 
 def cold_cells(r):
@@ -84,11 +86,13 @@ def rows_table(rows, peer_note):
     if peer_note:
         out.append('NOTE: %s' % peer_note)
     cols = ('input', 'cells', 'N', 'feat/map ms', 'pair ms', 'est cold ms', 'est warm ms',
-            'compose+publ ms', 'same output')
-    h = '%-16s %5s %3s | %-21s | %-21s | %-24s | %-18s | %-26s | %-14s' % cols
+            'compose+publ ms', 'same output', 'one map changed')
+    h = '%-16s %5s %3s | %-21s | %-21s | %-24s | %-18s | %-26s | %-14s | %-15s' % cols
     out += ['', 'TIME  (each cell: ours / m-explore = ratio; ratio < 1: we are faster. compose: '
             'ours + publishing against m-explore\'s compositing of its own merge; same output: its '
-            'compositing of the maps at our poses, ms = ratio. Compositing and, where m-explore\'s '
+            'compositing of the maps at our poses, ms = ratio; one map changed: ours when one robot\'s map '
+            'changed (the others\' warps kept, as live), ms = ratio to m-explore\'s own, which warps every map '
+            'each cycle. Compositing and, where m-explore\'s '
             'cycle is under %.0f s, cold estimation are measured in pairs, burst after burst '
             '(bench/duel.py): medians of the rounds and of their ratios; * = cold estimation not '
             'paired, one set of runs each)' % (PAIR_ESTIMATE_S,),
@@ -98,15 +102,16 @@ def rows_table(rows, peer_note):
 
         def trip(a, b, fa='%.1f', fb='%.1f'):
             return '%s / %s = %s' % (_f(a, fa), _f(b, fb), _f(_r(a, b), '%.2fx'))
-        cp, own, same = compose_cells(r)
+        cp, own, same, live = compose_cells(r)
         ca, cb, cr, paired = cold_cells(r)
-        out.append('%-16s %5s %3d | %-21s | %-21s | %-24s | %-18s | %-26s | %-14s' % (
+        out.append('%-16s %5s %3d | %-21s | %-21s | %-24s | %-18s | %-26s | %-14s | %-15s' % (
             r['name'], '%dk' % (o['map_cells'] // 1000), r['robots'],
             trip(o['features_ms'], p.get('features_ms')), trip(o['pair_ms'], p.get('pair_ms'), '%.0f', '%.0f'),
             '%s / %s = %s%s' % (_f(ca), _f(cb), _f(cr, '%.2fx'), '' if paired or cb is None else '*'),
             trip(o['warm_ms'], p.get('estimate_ms'), '%.2f', '%.0f'),
             '%s / %s = %s' % (_f(cp, '%.1f'), _f(own[0], '%.1f'), _f(own[1], '%.2fx')),
-            '%s = %s' % (_f(same[0], '%.1f'), _f(same[1], '%.2fx'))))
+            '%s = %s' % (_f(same[0], '%.1f'), _f(same[1], '%.2fx')),
+            '%s = %s' % (_f(live[0], '%.1f'), _f(live[1], '%.2fx'))))
     h = '%-16s %3s | %-30s | %-16s | %-38s' % ('input', 'N', 'peak RSS MB (ours: +workers)', 'placed (ok)',
                                                 'max error: ours | m-explore')
     out += ['', 'MEMORY AND CORRECTNESS  (placed: robots put in the merged frame besides the reference; '
