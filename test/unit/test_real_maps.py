@@ -239,12 +239,15 @@ def test_look_alike_windows_with_little_evidence_are_not_placed(shared_data, wor
     from multi_map_merge.config import MergeConfig
     pieces = inputs.pieces_windows(inputs.world_map(world), robots, frac, seed)
     errors = {}
-    for gate in (MergeConfig().few_inliers, 0):
+    gated = MergeConfig().few_inliers
+    for gate in (gated, 0):
         m = MapMerger(MergeConfig(workers=1, few_inliers=gate))
         for k, (g, _) in enumerate(pieces):
             m.update_map('r%02d' % k, g)
         m.estimate()
         errors[gate] = [pose_error(p.T, truth(pieces[0][1], pieces[int(n[1:])][1]))[0]
                         for n, p in m.placements().items() if n != 'r00']
-    assert all(e < 0.2 for e in errors[MergeConfig().few_inliers]), errors
+    assert all(e < 0.2 for e in errors[gated]), errors
     assert max(errors[0]) > 10.0, errors
+    # and no robot placed right without the gate is lost with it
+    assert len(errors[gated]) >= sum(e < 0.2 for e in errors[0]), errors
