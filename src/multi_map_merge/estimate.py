@@ -26,7 +26,7 @@ import numpy as np
 
 from .features import Features
 from .grid import FREE, OCCUPIED, known_bbox
-from .transforms import apply, rigid_from_points, se2, turn_between, wrap_angle
+from .transforms import apply, rigid_fit_angle, rigid_fit_translation, se2, turn_between, wrap_angle
 
 
 @dataclass
@@ -106,7 +106,8 @@ def ransac_rigid(src: np.ndarray, dst: np.ndarray, threshold: float, iterations:
     # Preemptive scoring: every hypothesis on a fixed random subset of the matches, then only
     # the best few hundred on all of them (the ranking at the top is what matters).
     sub = rng.choice(n, 400, replace=False) if n > 400 else np.arange(n)
-    terms_sub = _match_terms(src[sub], dst[sub])
+    terms = _match_terms(src, dst)
+    terms_sub = terms[:, sub]
     # coordinates as separate contiguous arrays: the samples index them by the thousand
     px, py, qx, qy = (np.ascontiguousarray(v) for v in (src[:, 0], src[:, 1], dst[:, 0], dst[:, 1]))
     C, S, TX, TY, ANG, PRE = [], [], [], [], [], []
@@ -143,7 +144,6 @@ def ransac_rigid(src: np.ndarray, dst: np.ndarray, threshold: float, iterations:
     if not C:
         return []
     c, s, tx, ty, ang, pre = (np.concatenate(v) for v in (C, S, TX, TY, ANG, PRE))
-    terms = _match_terms(src, dst)
     if sub.size < n:
         keep = np.argsort(-pre, kind='stable')[:300]
         counts = np.zeros(c.size, np.int64)
@@ -206,12 +206,10 @@ def _refit_all(c: np.ndarray, s: np.ndarray, tx: np.ndarray, ty: np.ndarray, src
         if not k.size:
             break
         n = count[k].astype(np.float64)
-        ssx, ssy, sdx, sdy, kxx, kxy, kyx, kyy = (mask[k] @ per_match).T
-        th = np.arctan2((kxy - ssx * sdy / n) - (kyx - ssy * sdx / n),
-                        (kxx - ssx * sdx / n) + (kyy - ssy * sdy / n))
+        ssx, ssy, sdx, sdy, sxdx, sxdy, sydx, sydy = (mask[k] @ per_match).T
+        th = np.arctan2(*rigid_fit_angle(n, ssx, ssy, sdx, sdy, sxdx, sxdy, sydx, sydy))
         c2, s2 = np.cos(th), np.sin(th)
-        tx2 = sdx / n - (c2 * ssx / n - s2 * ssy / n)
-        ty2 = sdy / n - (s2 * ssx / n + c2 * ssy / n)
+        tx2, ty2 = rigid_fit_translation(n, c2, s2, ssx, ssy, sdx, sdy)
         saved = c[k], s[k], tx[k], ty[k]
         c[k], s[k], tx[k], ty[k] = c2, s2, tx2, ty2
         m2 = inliers(k)

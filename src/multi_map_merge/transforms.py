@@ -98,17 +98,28 @@ def rigid_from_xy(sx: np.ndarray, sy: np.ndarray, dx: np.ndarray, dy: np.ndarray
     products of 1-D arrays (numpy's column sums of an (N, 2) array cost several times more)."""
     n = sx.shape[0]
     ssx, ssy, sdx, sdy = sx.sum(), sy.sum(), dx.sum(), dy.sum()
-    # cross-covariance about the means
-    kxx = sx @ dx - ssx * sdx / n
-    kxy = sx @ dy - ssx * sdy / n
-    kyx = sy @ dx - ssy * sdx / n
-    kyy = sy @ dy - ssy * sdy / n
-    th = math.atan2(kxy - kyx, kxx + kyy)
+    th = math.atan2(*rigid_fit_angle(n, ssx, ssy, sdx, sdy, sx @ dx, sx @ dy, sy @ dx, sy @ dy))
     c, s = math.cos(th), math.sin(th)
+    tx, ty = rigid_fit_translation(n, c, s, ssx, ssy, sdx, sdy)
+    return np.array([[c, -s, tx], [s, c, ty], [0.0, 0.0, 1.0]])
+
+
+def rigid_fit_angle(n, ssx, ssy, sdx, sdy, sxdx, sxdy, sydx, sydy):
+    """(y, x) whose atan2 is the rotation of the least-squares rigid fit dst ~ R src + t over n
+    point pairs, from the sums of src x, y, dst x, y and of the products sx dx, sx dy, sy dx,
+    sy dy: the cross-covariance about the means. Scalars, or arrays for many fits at once."""
+    kxx = sxdx - ssx * sdx / n
+    kxy = sxdy - ssx * sdy / n
+    kyx = sydx - ssy * sdx / n
+    kyy = sydy - ssy * sdy / n
+    return kxy - kyx, kxx + kyy
+
+
+def rigid_fit_translation(n, c, s, ssx, ssy, sdx, sdy):
+    """(tx, ty) of that fit once its rotation (cos ``c``, sin ``s``) is known: the dst mean
+    minus the rotated src mean. Scalars or arrays, as :func:`rigid_fit_angle`."""
     msx, msy, mdx, mdy = ssx / n, ssy / n, sdx / n, sdy / n
-    return np.array([[c, -s, mdx - (c * msx - s * msy)],
-                     [s, c, mdy - (s * msx + c * msy)],
-                     [0.0, 0.0, 1.0]])
+    return mdx - (c * msx - s * msy), mdy - (s * msx + c * msy)
 
 
 def apply(T: np.ndarray, pts: np.ndarray) -> np.ndarray:
