@@ -15,7 +15,6 @@ every robot's trajectory drawn through the merged TF. Exit status 1 when a robot
 from __future__ import annotations
 
 import argparse
-import math
 import os
 import sys
 from typing import Dict, List, Optional, Sequence, Tuple
@@ -26,7 +25,7 @@ import yaml
 
 from .grid import Grid
 from .mapio import grid_to_pgm, load_map, save_map
-from .transforms import apply, cell_to_metric, inverse, pose_to_image, se2, xyyaw
+from .transforms import apply, cell_to_metric, inverse, pose_to_image, se2
 
 # the paper's Table 1 (four Turtlebot3s vs one, 117 m2 house)
 PAPER = {'multi': (0.9105, 0.076), 'single': (0.7024, 0.085)}

@@ -13,7 +13,7 @@ from multi_map_merge.evaluate import score_map, transform_errors
 from multi_map_merge.grid import FREE, OCCUPIED, Grid
 from multi_map_merge.mapio import load_map
 from multi_map_merge.posegraph import optimise, worst_residual
-from multi_map_merge.transforms import se2, wrap_angle, xyyaw
+from multi_map_merge.transforms import se2, wrap_angle
 
 HOUSE = os.path.join(DATA, 'aws_small_house.yaml')
 
