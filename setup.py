@@ -2,4 +2,6 @@
 from setuptools import setup
 from catkin_pkg.python_setup import generate_distutils_setup
 
-setup(**generate_distutils_setup(packages=['multi_map_merge'], package_dir={'': 'src'}))
+setup(**generate_distutils_setup(
+    packages=['multi_map_merge', 'multi_map_merge.core', 'multi_map_merge.ros', 'multi_map_merge.lab'],
+    package_dir={'': 'src'}))

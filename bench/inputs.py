@@ -18,9 +18,9 @@ sys.path.insert(0, os.path.join(REPO, 'src'))
 SHARED = os.path.abspath(os.path.join(REPO, '..', 'shared'))
 DATA = os.path.join(SHARED, 'data')
 
-from multi_map_merge.grid import known_bbox  # noqa: E402
-from multi_map_merge.mapio import load_map, save_map  # noqa: E402
-from multi_map_merge.synth import cut_piece, random_poses, split_rects  # noqa: E402
+from multi_map_merge.core.grid import known_bbox  # noqa: E402
+from multi_map_merge.core.mapio import load_map, save_map  # noqa: E402
+from multi_map_merge.lab.synth import cut_piece, random_poses, split_rects  # noqa: E402
 
 
 def world_map(name):

@@ -32,7 +32,7 @@ sys.path.insert(0, os.path.join(REPO, 'src'))
 from inputs import pieces_windows, world_map  # noqa: E402
 from peer import live_node  # noqa: E402
 from report import machine  # noqa: E402
-from multi_map_merge.mapio import save_map  # noqa: E402
+from multi_map_merge.core.mapio import save_map  # noqa: E402
 
 
 def port_free(port):

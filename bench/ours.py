@@ -53,7 +53,7 @@ def publish(grid):
     """(seconds, bytes) of what the node does to publish a merged grid: a numpy_msg
     OccupancyGrid, serialised."""
     import rospy
-    from multi_map_merge.ros_adapter import grid_to_msg
+    from multi_map_merge.ros.node import grid_to_msg
     t = time.perf_counter()
     msg = grid_to_msg(grid, rospy.Time(0), 'map')
     buf = io.BytesIO()
@@ -63,7 +63,7 @@ def publish(grid):
 
 def worker_peaks_mb():
     """VmHWM of the merger's estimation workers (forkserver children, not ours: read /proc)."""
-    import multi_map_merge.merger as mm
+    import multi_map_merge.core.merger as mm
     total = 0.0
     if mm._POOL is not None:
         for pid in list(mm._POOL._processes):
@@ -84,11 +84,11 @@ def _hold(fn, *args):
 def start_pool(cfg):
     """Start the merger's worker pool (and import the package in every worker), as the node
     does once at its first cycle; returns the ms it took."""
-    import multi_map_merge.merger as mm
+    import multi_map_merge.core.merger as mm
     t = time.perf_counter()
     pool = mm._pool(cfg.workers)
     if pool is not None:
-        from multi_map_merge.pairs import compute_features
+        from multi_map_merge.core.pair import compute_features
         tiny = np.zeros((8, 8), np.uint8)
         n = mm._POOL_SIZE
         list(pool.map(_hold, [compute_features] * n, [cfg] * n, [tiny] * n))
@@ -97,7 +97,7 @@ def start_pool(cfg):
 
 def score(placements, truth, n):
     """Per placed robot (reference excluded): (translation error m, rotation error deg)."""
-    from multi_map_merge.transforms import pose_distance
+    from multi_map_merge.core.transforms import pose_distance
     errs = {}
     if truth is None:
         return errs
@@ -139,10 +139,10 @@ def compose_burst(m):
 def serve(spec):
     """Estimate once, print {"ready": true, "poses": ...}, then one compose_burst() JSON line per
     line read on stdin, until EOF: bench/duel.py alternates these bursts with m-explore's."""
-    from multi_map_merge.config import MergeConfig
-    from multi_map_merge.mapio import load_map
-    from multi_map_merge.merger import MapMerger
-    from multi_map_merge.transforms import xyyaw
+    from multi_map_merge.core.config import MergeConfig
+    from multi_map_merge.core.mapio import load_map
+    from multi_map_merge.core.merger import MapMerger
+    from multi_map_merge.core.transforms import xyyaw
     m = MapMerger(MergeConfig())
     for k, p in enumerate(spec['paths']):
         m.update_map('r%02d' % k, load_map(p))
@@ -158,9 +158,9 @@ def serve_estimate(spec):
     """Start the worker pool, print {"ready": true}, then for every line read on stdin one cold
     estimation cycle (a new MapMerger holding every map, as in main()), printed as {"ms": ...,
     "placed": ...}: bench/duel.py alternates these cycles with m-explore's estimateTransforms()."""
-    from multi_map_merge.config import MergeConfig
-    from multi_map_merge.mapio import load_map
-    from multi_map_merge.merger import MapMerger
+    from multi_map_merge.core.config import MergeConfig
+    from multi_map_merge.core.mapio import load_map
+    from multi_map_merge.core.merger import MapMerger
     cfg = MergeConfig()
     grids = [load_map(p) for p in spec['paths']]
     start_pool(cfg)
@@ -181,11 +181,11 @@ def main():
     if sys.argv[1] == '--serve-estimate':
         return serve_estimate(json.load(open(sys.argv[2])))
     spec = json.load(open(sys.argv[1]))
-    from multi_map_merge.config import MergeConfig
-    from multi_map_merge.features import FeatureExtractor
-    from multi_map_merge.mapio import load_map
-    import multi_map_merge.merger as mm
-    from multi_map_merge.merger import MapMerger, RobotMap
+    from multi_map_merge.core.config import MergeConfig
+    from multi_map_merge.core.features import FeatureExtractor
+    from multi_map_merge.core.mapio import load_map
+    import multi_map_merge.core.merger as mm
+    from multi_map_merge.core.merger import MapMerger, RobotMap
 
     paths, truth, reps = spec['paths'], spec.get('truth'), int(spec['reps'])
     pairs = [tuple(p) for p in spec['pairs']]
@@ -204,7 +204,7 @@ def main():
             feat.append(time.perf_counter() - t)
 
     # (1b) ingestion: what update_map does with a map as it arrives, on a fresh copy each time
-    from multi_map_merge.grid import Grid
+    from multi_map_merge.core.grid import Grid
     ingest = []
     for g in grids:
         for _ in range(reps):
@@ -255,7 +255,7 @@ def main():
 
     P = m.placements()
     errs = score(P, truth, len(grids))
-    from multi_map_merge.transforms import xyyaw
+    from multi_map_merge.core.transforms import xyyaw
     poses = {k: list(xyyaw(P['r%02d' % k].T)) for k in range(len(grids)) if 'r%02d' % k in P}
     print(json.dumps({
         'features_ms': med(feat), 'pair_ms': med(pair), 'cold_ms': med(cold), 'warm_ms': med(warm),

@@ -139,7 +139,7 @@ class Peer:
 
     def measure(self, paths, truth, reps, pairs, full=True):
         """m-explore's figures for one configuration (see module docstring)."""
-        from multi_map_merge.transforms import pose_distance, se2
+        from multi_map_merge.core.transforms import pose_distance, se2
         res = {}
         feat = {}
         for k in sorted({k for ab in pairs for k in ab}):

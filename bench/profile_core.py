@@ -40,8 +40,8 @@ def main():
     ap.add_argument('--out', default=os.path.join(HERE, 'results'))
     a = ap.parse_args()
     os.makedirs(a.out, exist_ok=True)
-    from multi_map_merge.config import MergeConfig
-    from multi_map_merge.merger import MapMerger
+    from multi_map_merge.core.config import MergeConfig
+    from multi_map_merge.core.merger import MapMerger
     for name in a.configs:
         grids = [g for g, _ in CONFIGS[name]()]
         m = MapMerger(MergeConfig(workers=1))

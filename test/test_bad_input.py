@@ -26,9 +26,9 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from test_merge_node import (Listener, RobotPlayer, compare_with_truth,  # noqa: E402
                              data_file, expected_canvas, fmt_pose, lookup, make_pieces,
                              union_mask_of, wait_until)
-from multi_map_merge.mapio import load_map  # noqa: E402
-from multi_map_merge.ros_adapter import grid_to_msg  # noqa: E402
-from multi_map_merge.transforms import pose_distance  # noqa: E402
+from multi_map_merge.core.mapio import load_map  # noqa: E402
+from multi_map_merge.ros.node import grid_to_msg  # noqa: E402
+from multi_map_merge.core.transforms import pose_distance  # noqa: E402
 
 PKG = 'multi_map_merge'
 POSES = [(0.5, 1.0, math.radians(-30.0)), (-2.0, 3.0, math.radians(150.0))]

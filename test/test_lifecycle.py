@@ -22,10 +22,10 @@ from rospy.numpy_msg import numpy_msg
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from test_merge_node import (Listener, RobotPlayer, data_file, lookup, make_pieces,  # noqa: E402
                              wait_until)
-from multi_map_merge.grid import Grid  # noqa: E402
-from multi_map_merge.mapio import load_map  # noqa: E402
-from multi_map_merge.ros_adapter import NumpyGrid, grid_from_msg  # noqa: E402
-from multi_map_merge.transforms import pose_distance  # noqa: E402
+from multi_map_merge.core.grid import Grid  # noqa: E402
+from multi_map_merge.core.mapio import load_map  # noqa: E402
+from multi_map_merge.ros.node import NumpyGrid, grid_from_msg  # noqa: E402
+from multi_map_merge.core.transforms import pose_distance  # noqa: E402
 
 PKG = 'multi_map_merge'
 

@@ -15,13 +15,13 @@ import rostest
 
 from rostest_helpers import shared_data, stop_launch
 
-from multi_map_merge.config import MergeConfig
-from multi_map_merge.grid import OCCUPIED
-from multi_map_merge.merger import MapMerger
-from multi_map_merge.ros_adapter import (init_node, lookup_transforms, read_bag_maps, wait_for_map,
+from multi_map_merge.core.config import MergeConfig
+from multi_map_merge.core.grid import OCCUPIED
+from multi_map_merge.core.merger import MapMerger
+from multi_map_merge.ros.node import (init_node, lookup_transforms, read_bag_maps, wait_for_map,
                                          wait_for_merge)
-from multi_map_merge.estimate import agreement
-from multi_map_merge.transforms import cell_to_metric, pose_distance, pose_to_image
+from multi_map_merge.core.verify import agreement
+from multi_map_merge.core.transforms import cell_to_metric, pose_distance, pose_to_image
 
 ROBOTS = ['tb3_0', 'tb3_1', 'tb3_2']
 

@@ -11,7 +11,7 @@ sys.path.insert(0, os.path.join(REPO, 'src'))
 DATA = os.path.join(REPO, 'test', 'data')
 SHARED = os.path.abspath(os.path.join(REPO, '..', 'shared', 'data'))
 
-from multi_map_merge.transforms import pose_distance  # noqa: E402
+from multi_map_merge.core.transforms import pose_distance  # noqa: E402
 
 
 @pytest.fixture

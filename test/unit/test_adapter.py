@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 import rospy
 
-from multi_map_merge.grid import Grid, GridError
-from multi_map_merge.ros_adapter import grid_from_msg, grid_to_msg, transform_msg
-from multi_map_merge.transforms import se2
+from multi_map_merge.core.grid import Grid, GridError
+from multi_map_merge.ros.node import grid_from_msg, grid_to_msg, transform_msg
+from multi_map_merge.core.transforms import se2
 
 
 def test_round_trip_keeps_cells_and_origin():

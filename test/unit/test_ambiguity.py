@@ -6,12 +6,12 @@ import os
 
 import numpy as np
 
-from multi_map_merge.config import MergeConfig
-from multi_map_merge.grid import Grid, known_bbox
-from multi_map_merge.mapio import load_map
-from multi_map_merge.merger import MapMerger
-from multi_map_merge.synth import cut_piece
-from multi_map_merge.transforms import xyyaw
+from multi_map_merge.core.config import MergeConfig
+from multi_map_merge.core.grid import Grid, known_bbox
+from multi_map_merge.core.mapio import load_map
+from multi_map_merge.core.merger import MapMerger
+from multi_map_merge.lab.synth import cut_piece
+from multi_map_merge.core.transforms import xyyaw
 from conftest import DATA, pose_error
 
 

@@ -3,7 +3,7 @@ import shutil
 
 import pytest
 
-from multi_map_merge import cli
+from multi_map_merge.core import offline as cli
 from conftest import DATA
 
 

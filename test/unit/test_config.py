@@ -3,7 +3,7 @@ from dataclasses import fields
 
 import yaml
 
-from multi_map_merge.config import MergeConfig
+from multi_map_merge.core.config import MergeConfig
 from conftest import REPO
 
 

@@ -8,9 +8,10 @@ import sys
 import numpy as np
 import pytest
 
-from multi_map_merge import estimate as est
-from multi_map_merge.grid import FREE, OCCUPIED, known_bbox
-from multi_map_merge.transforms import apply, rigid_from_points, se2
+from multi_map_merge.core import matching as est
+from multi_map_merge.core import verify
+from multi_map_merge.core.grid import FREE, OCCUPIED, known_bbox
+from multi_map_merge.core.transforms import apply, rigid_from_points, se2
 
 SRC = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))), 'src')
 
@@ -129,18 +130,18 @@ def _agreement_reference(parent, child, B, tol):
 def test_agreement_with_the_parents_walls_derived_once_is_as_specified(seed):
     parent, child, A = _room_grids(seed)
     boxes = (known_bbox(parent), known_bbox(child))
-    walls = est.Walls.of(parent, 2)
+    walls = verify.Walls.of(parent, 2)
     for B in (A, A @ se2(3, -2, 0.05), A @ se2(40, 0, 0.0), A @ se2(0, 0, 1.0)):
         want_ag, want_overlap = _agreement_reference(parent, child, B, 2)
         # (the score warps the child onto a window of the parent: OpenCV's fixed-point
         # sampling can then pick the other cell of a tie, a few cells in ten thousand)
-        for got_ag, got_overlap in (est.agreement(parent, child, B, 2, boxes, walls),
-                                    est.agreement(parent, child, B, 2)):
+        for got_ag, got_overlap in (verify.agreement(parent, child, B, 2, boxes, walls),
+                                    verify.agreement(parent, child, B, 2)):
             assert got_ag == pytest.approx(want_ag, abs=0.005)
             assert got_overlap == pytest.approx(want_overlap, rel=0.002)
-    ag, overlap = est.agreement(parent, child, A, 2, boxes, walls)
+    ag, overlap = verify.agreement(parent, child, A, 2, boxes, walls)
     assert ag > 0.95 and overlap > 5000
-    assert est.agreement(parent, child, A @ se2(40, 0, 0.0), 2, boxes, walls)[0] < 0.8
+    assert verify.agreement(parent, child, A @ se2(40, 0, 0.0), 2, boxes, walls)[0] < 0.8
 
 
 def test_workers_run_blas_on_one_thread():
@@ -148,7 +149,7 @@ def test_workers_run_blas_on_one_thread():
     code = ('import ctypes, sys\n'
             'sys.path.insert(0, %r)\n'
             'import numpy\n'
-            'from multi_map_merge.merger import _worker_init\n'
+            'from multi_map_merge.core.merger import _worker_init\n'
             'try:\n'
             '    lib = ctypes.CDLL("libblas.so.3")\n'
             '    get = lib.openblas_get_num_threads\n'

@@ -12,12 +12,12 @@ from scipy.spatial import cKDTree
 
 from conftest import DATA, REPO, pose_error
 
-from multi_map_merge.evaluate import (load_transforms, load_truth, occupied_points, score_map,
+from multi_map_merge.lab.evaluate import (load_transforms, load_truth, occupied_points, score_map,
                                       transform_errors)
-from multi_map_merge.grid import FREE, OCCUPIED, Grid, GridError
-from multi_map_merge.mapio import load_map, save_map
-from multi_map_merge.synth import cut_piece, random_poses
-from multi_map_merge.transforms import inverse, se2, xyyaw
+from multi_map_merge.core.grid import FREE, OCCUPIED, Grid, GridError
+from multi_map_merge.core.mapio import load_map, save_map
+from multi_map_merge.lab.synth import cut_piece, random_poses
+from multi_map_merge.core.transforms import inverse, se2, xyyaw
 
 HOUSE = os.path.join(DATA, 'aws_small_house.yaml')
 INTEL = os.path.join(DATA, 'intel.yaml')

@@ -2,9 +2,9 @@
 import numpy as np
 import pytest
 
-from multi_map_merge.grid import (FREE, OCCUPIED, UNKNOWN, Grid, GridError, apply_update, classify,
+from multi_map_merge.core.grid import (FREE, OCCUPIED, UNKNOWN, Grid, GridError, apply_update, classify,
                                   make_grid, rescale, validate)
-from multi_map_merge.mapio import MapFileError, grid_to_pgm, load_map, save_map
+from multi_map_merge.core.mapio import MapFileError, grid_to_pgm, load_map, save_map
 
 
 def test_classification_thresholds():

@@ -4,12 +4,12 @@ import os
 import numpy as np
 import pytest
 
-from multi_map_merge.config import MergeConfig
-from multi_map_merge.grid import Grid, known_bbox
-from multi_map_merge.mapio import load_map
-from multi_map_merge.merger import MapMerger
-from multi_map_merge.persist import load_state, save_state
-from multi_map_merge.synth import cut_piece
+from multi_map_merge.core.config import MergeConfig
+from multi_map_merge.core.grid import Grid, known_bbox
+from multi_map_merge.core.mapio import load_map
+from multi_map_merge.core.merger import MapMerger
+from multi_map_merge.core.state import load_state, save_state
+from multi_map_merge.lab.synth import cut_piece
 from conftest import DATA, pose_error, truth
 
 
@@ -138,7 +138,7 @@ def test_keeps_most_reliable_transform(intel):
 
 
 def test_map_of_another_resolution_is_rescaled_not_rejected(intel):
-    from multi_map_merge.grid import rescale
+    from multi_map_merge.core.grid import rescale
     ps = strip_pieces(intel, [(0, 0, 0), (3, -2, 2.0), (-4, 1, -2.5)])
     coarse = rescale(ps[1][0], 0.1)                    # robot b maps at 10 cm
     m = MapMerger()
@@ -177,8 +177,8 @@ def test_early_look_alike_is_replaced_despite_its_higher_inlier_ratio(intel, pos
     """A link found on small maps can be a look-alike with a high inlier ratio; inlier ratios
     fall as maps grow, so the right solution found later on the full grids must replace it
     because it verifies clearly better there, whatever its inlier ratio."""
-    from multi_map_merge.merger import Edge
-    from multi_map_merge.transforms import se2
+    from multi_map_merge.core.merger import Edge
+    from multi_map_merge.core.transforms import se2
     ps = strip_pieces(intel, [(0, 0, 0), (3, -2, 2.0), (-4, 1, -2.5)])
     m = MapMerger(MergeConfig(reference_robot='a', pose_graph=pose_graph))
     m.update_map('a', ps[0][0])
@@ -205,7 +205,7 @@ def test_early_look_alike_is_replaced_despite_its_higher_inlier_ratio(intel, pos
 
 
 def test_a_clearly_better_link_is_one_that_halves_the_disagreement_near_one():
-    from multi_map_merge.merger import _clearly_better
+    from multi_map_merge.core.merger import _clearly_better
     assert _clearly_better(0.995, 0.973)       # isr_small: the look-alike 1.1 m along a corridor
     assert _clearly_better(0.95, 0.91)         # 0.03 more
     assert not _clearly_better(0.994, 0.992)   # the same link's noise
@@ -218,8 +218,8 @@ def test_a_pair_estimated_on_the_known_crops_is_the_pair_of_the_whole_grids(inte
     grids' cells: on gmapping-like canvases (the pieces sit in 150 cells of unknown, at
     different offsets) the transform equals the one estimated on the whole grids, and the
     truth."""
-    from multi_map_merge.pairs import PairInput, compute_features, crop_known, estimate_pair
-    from multi_map_merge.transforms import image_to_pose
+    from multi_map_merge.core.pair import PairInput, compute_features, crop_known, estimate_pair
+    from multi_map_merge.core.transforms import image_to_pose
     ps = strip_pieces(intel, [(0, 0, 0), (3, -2, 2.0), (-4, 1, -2.5)])
     cfg = MergeConfig(workers=1)
     grids = []
@@ -262,7 +262,7 @@ def test_a_small_map_merges_into_a_big_one_described_coarser(intel):
         h = int(rng.integers(220, 330))
         a, b = int(rng.integers(r0, r1 - h)), int(rng.integers(c0, c1 - h))
         windows.append(((a, a + h, b, b + h), (rng.uniform(-3, 3), rng.uniform(-3, 3), rng.uniform(-3, 3))))
-    from multi_map_merge.features import FeatureExtractor
+    from multi_map_merge.core.features import FeatureExtractor
     cfg = MergeConfig(reference_robot='big', workers=1)
     fe = FeatureExtractor(cfg.akaze_threshold, cfg.max_features, cfg.feature_cells)
     for rect, pose in windows[1:]:

@@ -7,11 +7,11 @@ import os
 import numpy as np
 import pytest
 
-from multi_map_merge import estimate as est
-from multi_map_merge.grid import FREE, OCCUPIED
-from multi_map_merge.mapio import load_map
-from multi_map_merge.merger import MapMerger
-from multi_map_merge.transforms import pose_to_image, xyyaw
+from multi_map_merge.core import verify
+from multi_map_merge.core.grid import FREE, OCCUPIED
+from multi_map_merge.core.mapio import load_map
+from multi_map_merge.core.merger import MapMerger
+from multi_map_merge.core.transforms import pose_to_image, xyyaw
 from conftest import DATA, REPO, pose_error, truth
 
 MAZE = os.path.join(DATA, 'tb3_dans_maze')
@@ -61,7 +61,7 @@ def test_dans_maze_three_robots_match_the_full_map():
     m2.estimate()
     assert 'merged' in m2.placements()
     A = pose_to_image(m2.placements()['merged'].T, full.resolution, full.origin, merged.resolution, merged.origin)
-    agreement, overlap = est.agreement(full.levels(), merged.levels(), A, 2)
+    agreement, overlap = verify.agreement(full.levels(), merged.levels(), A, 2)
     assert agreement > 0.93, agreement
     assert overlap > 0.9 * (full.data >= 0).sum()       # the merge covers the whole maze
 
@@ -89,7 +89,7 @@ def test_intel_inner_outer_45_degrees(shared_data):
 
 
 def house(shared_data, **kw):
-    from multi_map_merge.config import MergeConfig
+    from multi_map_merge.core.config import MergeConfig
     m = MapMerger(MergeConfig(**kw))
     for i in range(4):
         m.update_map('tb3_%d' % i, load_map(os.path.join(shared_data, 'tb3_house', 'tb3_%d_map.yaml' % i)))
@@ -158,7 +158,7 @@ def test_dans_maze_each_robot_map_belongs_where_the_full_map_says():
     at_identity = {}
     for n, g in robots.items():
         A = pose_to_image(np.eye(3), full.resolution, full.origin, g.resolution, g.origin)
-        at_identity[n], overlap = est.agreement(lf, g.levels(), A, 2)
+        at_identity[n], overlap = verify.agreement(lf, g.levels(), A, 2)
         assert overlap > 0.9 * (g.data >= 0).sum()          # all of it lies inside the maze
     assert at_identity[0] > 0.98 and at_identity[2] > 0.94, at_identity
     assert at_identity[1] < 0.85, at_identity                 # the drifted one
@@ -170,7 +170,7 @@ def test_dans_maze_each_robot_map_belongs_where_the_full_map_says():
             x, y, yaw = xyyaw(T)
             assert math.hypot(x, y) < 0.3 and abs(math.degrees(yaw)) < 3.0, (n, x, y, math.degrees(yaw))
             A = pose_to_image(T, full.resolution, full.origin, g.resolution, g.origin)
-            found[n] = est.agreement(lf, g.levels(), A, 2)[0]
+            found[n] = verify.agreement(lf, g.levels(), A, 2)[0]
             assert found[n] >= max(0.95, at_identity[n]), (n, found[n], at_identity[n])
     assert {1, 2} <= set(found), found
     # the merge of the three, placed in the full map: every robot frame near identity
@@ -198,8 +198,8 @@ def test_isr_small_live_orders_never_end_on_a_look_alike(shared_data):
     the merger once ended 1.6-2.3 m off; it must end on a placement the last grids agree
     with."""
     import random
-    from multi_map_merge.config import MergeConfig
-    from multi_map_merge.ros_adapter import read_bag_maps
+    from multi_map_merge.core.config import MergeConfig
+    from multi_map_merge.ros.node import read_bag_maps
     bags = [os.path.join(shared_data, 'mrgs/bags_gmapping/isr_small_gmapping_%d.bag' % k) for k in (1, 2, 3)]
     seq = []
     for k, b in enumerate(bags):
@@ -236,7 +236,7 @@ def test_look_alike_windows_with_little_evidence_are_not_placed(shared_data, wor
     import sys
     sys.path.insert(0, os.path.join(REPO, 'bench'))
     import inputs
-    from multi_map_merge.config import MergeConfig
+    from multi_map_merge.core.config import MergeConfig
     pieces = inputs.pieces_windows(inputs.world_map(world), robots, frac, seed)
     errors = {}
     gated = MergeConfig().few_inliers

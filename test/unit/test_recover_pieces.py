@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 import yaml
 
-from multi_map_merge import cli
-from multi_map_merge.mapio import load_map, save_map
-from multi_map_merge.merger import MapMerger
-from multi_map_merge.synth import cut_piece, random_poses, split_rects
-from multi_map_merge.transforms import se2
+from multi_map_merge.core import offline as cli
+from multi_map_merge.core.mapio import load_map, save_map
+from multi_map_merge.core.merger import MapMerger
+from multi_map_merge.lab.synth import cut_piece, random_poses, split_rects
+from multi_map_merge.core.transforms import se2
 from conftest import DATA, REPO, pose_error, truth
 
 CASES = [(world, n, seed) for world in ('intel', 'aws_small_house') for n in (2, 3, 4) for seed in (0, 1, 2, 3)]
@@ -84,8 +84,8 @@ def check_merged_is_the_world(merged, w, ps, rs):
     """The merged map (frame of piece 0) warped back into the world grid covers the union of
     the cut rectangles and says there what the world says; nothing lies outside it."""
     import cv2
-    from multi_map_merge.grid import FREE, OCCUPIED
-    from multi_map_merge.transforms import cell_to_metric, inverse
+    from multi_map_merge.core.grid import FREE, OCCUPIED
+    from multi_map_merge.core.transforms import cell_to_metric, inverse
     assert merged.resolution == pytest.approx(w.resolution)
     # cells of the merged grid -> cells of the world grid
     A = inverse(cell_to_metric(w.resolution, w.origin)) @ ps[0][1] @ cell_to_metric(merged.resolution, merged.origin)

@@ -8,12 +8,12 @@ import pytest
 
 from conftest import DATA, pose_error
 
-from multi_map_merge import simulate as sim
-from multi_map_merge.evaluate import score_map, transform_errors
-from multi_map_merge.grid import FREE, OCCUPIED, Grid
-from multi_map_merge.mapio import load_map
-from multi_map_merge.posegraph import optimise, worst_residual
-from multi_map_merge.transforms import se2, wrap_angle
+from multi_map_merge.lab import simulate as sim
+from multi_map_merge.lab.evaluate import score_map, transform_errors
+from multi_map_merge.core.grid import FREE, OCCUPIED, Grid
+from multi_map_merge.core.mapio import load_map
+from multi_map_merge.core.posegraph import optimise, worst_residual
+from multi_map_merge.core.transforms import se2, wrap_angle
 
 HOUSE = os.path.join(DATA, 'aws_small_house.yaml')
 
@@ -121,8 +121,8 @@ def test_gmapping_counting_model():
 
 
 def test_team_maps_merge_and_score_against_the_truth(house, team):
-    from multi_map_merge.config import MergeConfig
-    from multi_map_merge.merger import MapMerger
+    from multi_map_merge.core.config import MergeConfig
+    from multi_map_merge.core.merger import MapMerger
     robots, lone = team
     m = MapMerger(MergeConfig.from_dict({'reference_robot': 'tb3_0', 'workers': 1}))
     for r in robots:
@@ -159,7 +159,7 @@ def test_a_distorted_map_loses_fitness(house):
 
 
 def test_score_without_a_coarse_pose_uses_the_merger(house):
-    from multi_map_merge.synth import cut_piece
+    from multi_map_merge.lab.synth import cut_piece
     piece, T = cut_piece(house, (150, 330, 60, 260), (2.0, -1.0, 1.2), 'piece')
     s = score_map(piece, house)
     assert s.init_source == 'merger'

@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 
-from multi_map_merge.mapio import load_map
-from multi_map_merge.synth import cut_piece
-from multi_map_merge.transforms import (apply, cell_to_metric, image_to_pose, pose_to_image,
+from multi_map_merge.core.mapio import load_map
+from multi_map_merge.lab.synth import cut_piece
+from multi_map_merge.core.transforms import (apply, cell_to_metric, image_to_pose, pose_to_image,
                                         rigid_from_points, se2, xyyaw)
 from conftest import DATA
 
@@ -75,7 +75,7 @@ def test_image_to_pose_of_true_image_transform_is_the_pose(pose):
     """Grid B = grid A moved by a known pose (synth.cut_piece). Two 3x3 markers (an occupied
     one and a free one, far apart, everything else unknown) give the true cell correspondence
     B -> A independently of pose_to_image; image_to_pose of it must be that pose."""
-    from multi_map_merge.grid import FREE, OCCUPIED, Grid
+    from multi_map_merge.core.grid import FREE, OCCUPIED, Grid
     data = np.full((120, 150), -1, np.int8)
     data[19:22, 29:32] = 100          # occupied marker centred on (col 30, row 20)
     data[99:102, 119:122] = 0         # free marker centred on (col 120, row 100)
@@ -96,7 +96,7 @@ def test_image_to_pose_of_true_image_transform_is_the_pose(pose):
 
 def test_pose_to_image_agrees_with_cut_piece_cells():
     """pose_to_image of the known pose maps the piece's marker onto the world's marker."""
-    from multi_map_merge.grid import OCCUPIED, Grid
+    from multi_map_merge.core.grid import OCCUPIED, Grid
     data = np.full((60, 80), -1, np.int8)
     data[9:12, 59:62] = 100
     world = Grid(data, 0.1, (3.0, -4.0, 0.0))

@@ -20,11 +20,23 @@ from typing import List, Optional
 
 import yaml
 
-from .mapio import MapFileError, load_map
+from ..core.mapio import MapFileError, load_map
 from .simulate import SimConfig, read_carmen, simulate_carmen, simulate_world
 
-DEFAULT_WORLD = os.path.join(os.path.dirname(os.path.abspath(__file__)), '..', '..', 'test', 'data',
-                             'aws_small_house.yaml')
+# the world of ``--world``'s default, in the package (installed with it, see CMakeLists.txt)
+DEFAULT_WORLD = os.path.join('test', 'data', 'aws_small_house.yaml')
+
+
+def package_file(relative: str) -> str:
+    """A file of the multi_map_merge package, found as ROS finds packages (rospkg: the source
+    package in a devel space, its share directory once installed). Raises OSError when the
+    package cannot be found."""
+    import rospkg
+    try:
+        root = rospkg.RosPack().get_path('multi_map_merge')
+    except rospkg.ResourceNotFound as e:
+        raise OSError('package multi_map_merge not found (%s): source its workspace or pass the file' % e) from None
+    return os.path.join(root, relative)
 
 # CARMEN logs: the buildings are bigger and the scans sparser than a Turtlebot3's. Their poses
 # are already a SLAM result on a far better laser (1 cm noise, 80 m) than an LDS-02 (3 m used):
@@ -54,13 +66,17 @@ def main(argv: Optional[List[str]] = None) -> int:
     if a.robots < 1 or a.robots > 16:
         print('make_robot_bags: --robots must be 1..16', file=sys.stderr)
         return 2
-    world_path = os.path.abspath(a.world or DEFAULT_WORLD)
+    try:
+        world_path = os.path.abspath(a.world or package_file(DEFAULT_WORLD))
+    except OSError as e:
+        print('make_robot_bags: %s (--world)' % e, file=sys.stderr)
+        return 2
     try:
         world = load_map(world_path)
     except MapFileError as e:
         print('make_robot_bags: %s' % e, file=sys.stderr)
         return 2
-    from .ros_adapter import write_robot_bag   # rosbag: only when writing
+    from ..ros.node import write_robot_bag   # rosbag: only when writing
     base = a.output[:-4] if a.output.endswith('.bag') else a.output
     os.makedirs(os.path.dirname(os.path.abspath(base)), exist_ok=True)
     extra = dict(CARMEN_DEFAULTS) if a.carmen else {}

@@ -37,8 +37,8 @@ from typing import List, Optional, Sequence, Tuple
 import cv2
 import numpy as np
 
-from .grid import FREE, OCCUPIED, Grid
-from .transforms import wrap_angle
+from ..core.grid import FREE, OCCUPIED, Grid
+from ..core.transforms import wrap_angle
 
 LDS02_OFFSET = (-0.032, 0.0, 0.172)   # base_footprint -> base_scan on a Burger, metres
 

@@ -1,7 +1,7 @@
 """The ROS-free half of `make demo` (``scripts/run_demo`` drives ROS; this module never imports rospy).
 
-    python3 -m multi_map_merge.demo_tools config BASE.yaml OUT.yaml key=value ...
-    python3 -m multi_map_merge.demo_tools report --truth NAME.truth.yaml --record DIR
+    python3 -m multi_map_merge.lab.demo config BASE.yaml OUT.yaml key=value ...
+    python3 -m multi_map_merge.lab.demo report --truth NAME.truth.yaml --record DIR
             [--single single.yaml] [--png OUT.png] [--title TEXT] [--max-distance 0.1]
 
 ``config`` writes a copy of the merger's parameter file with a few values changed. ``report``
@@ -23,9 +23,9 @@ import cv2
 import numpy as np
 import yaml
 
-from .grid import Grid
-from .mapio import grid_to_pgm, load_map, save_map
-from .transforms import apply, cell_to_metric, inverse, pose_to_image, se2
+from ..core.grid import Grid
+from ..core.mapio import grid_to_pgm, load_map, save_map
+from ..core.transforms import apply, cell_to_metric, inverse, pose_to_image, se2
 
 # the paper's Table 1 (four Turtlebot3s vs one, 117 m2 house)
 PAPER = {'multi': (0.9105, 0.076), 'single': (0.7024, 0.085)}
@@ -42,7 +42,7 @@ def write_config(base_yaml: str, out_yaml: str, overrides: Dict[str, object]) ->
 
 
 def save_record(rec: Dict, out_dir: str) -> bool:
-    """Write a replay's record (see ros_adapter.record_replay): merged.{yaml,pgm} and
+    """Write a replay's record (see ros.node.record_replay): merged.{yaml,pgm} and
     record.yaml. False when no merged map was ever received."""
     os.makedirs(out_dir, exist_ok=True)
     doc = {'clock': rec.get('clock'), 'robots': rec['robots']}
@@ -65,7 +65,7 @@ def _image(grid: Grid) -> np.ndarray:
 
 def warp_to(grid: Grid, T_dst_src: np.ndarray, dst: Grid) -> Grid:
     """``grid`` (frame src) resampled on ``dst``'s lattice, given the pose of src in dst's frame."""
-    from .grid import levels_to_values
+    from ..core.grid import levels_to_values
     M = pose_to_image(inverse(T_dst_src), grid.resolution, grid.origin, dst.resolution, dst.origin)
     lv = cv2.warpAffine(grid.levels(), M[:2], (dst.width, dst.height),
                         flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP, borderValue=0)
@@ -188,7 +188,7 @@ def report(truth_path: str, record_dir: str, single_path: Optional[str], png: Op
 
 
 def _main(argv: Optional[List[str]] = None) -> int:
-    ap = argparse.ArgumentParser(prog='demo_tools')
+    ap = argparse.ArgumentParser(prog='python3 -m multi_map_merge.lab.demo')
     sub = ap.add_subparsers(dest='cmd', required=True)
     c = sub.add_parser('config')
     c.add_argument('base')

@@ -23,11 +23,11 @@ from nav_msgs.msg import MapMetaData, OccupancyGrid
 from rospy.numpy_msg import numpy_msg
 from std_srvs.srv import Trigger, TriggerResponse
 
-from .config import MergeConfig
-from .grid import Grid, GridError, apply_update, make_grid
-from .merger import MapMerger
-from .persist import load_state, save_state
-from .transforms import se2, xyyaw
+from ..core.config import MergeConfig
+from ..core.grid import Grid, GridError, apply_update, make_grid
+from ..core.merger import MapMerger
+from ..core.state import load_state, save_state
+from ..core.transforms import se2, xyyaw
 
 NumpyGrid = numpy_msg(OccupancyGrid)
 NumpyGridUpdate = numpy_msg(OccupancyGridUpdate)
@@ -404,7 +404,7 @@ def _revealed(grid: Grid, radius: float) -> Optional[Grid]:
     """The part of ``grid`` a robot starting at its frame's origin has seen after exploring
     ``radius`` metres, on a grid cropped to it the way gmapping grows its canvas (new size,
     new origin at a whole number of cells)."""
-    from .transforms import cell_to_metric
+    from ..core.transforms import cell_to_metric
     W = cell_to_metric(grid.resolution, grid.origin)
     rr, cc = np.mgrid[0:grid.height, 0:grid.width]
     x = W[0, 0] * cc + W[0, 1] * rr + W[0, 2]
@@ -560,7 +560,7 @@ def write_robot_bag(path: str, runs, clock_rate: float = 10.0) -> Dict[str, int]
     from sensor_msgs.msg import LaserScan
     from tf2_msgs.msg import TFMessage
 
-    from .simulate import compose, relative
+    from ..lab.simulate import compose, relative
     NumpyScan = numpy_msg(LaserScan)
     counts: Dict[str, int] = {}
     records = []   # (time s, order, topic, msg): sorted before writing

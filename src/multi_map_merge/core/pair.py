@@ -13,7 +13,8 @@ from typing import Dict, Optional, Tuple
 import cv2
 import numpy as np
 
-from . import estimate as est
+from . import matching as est
+from . import verify
 from .config import MergeConfig
 from .features import FeatureExtractor, Features, coarsening
 from .grid import known_bbox
@@ -124,9 +125,9 @@ def _field(p: PairInput) -> WallField:
     return _derived('field', p, lambda p: WallField(p.levels))
 
 
-def _walls(p: PairInput, tolerance: int) -> est.Walls:
+def _walls(p: PairInput, tolerance: int) -> verify.Walls:
     """A map's walls for verification (needed where it is a pair's parent only)."""
-    return _derived('walls/%d' % tolerance, p, lambda p: est.Walls.of(p.levels, tolerance))
+    return _derived('walls/%d' % tolerance, p, lambda p: verify.Walls.of(p.levels, tolerance))
 
 
 def _wall_points(p: PairInput) -> np.ndarray:
@@ -202,7 +203,7 @@ def _estimate_crops(config: MergeConfig, pa: PairInput, ch: PairInput, seed: int
         inl = int(mask.sum())
         if inl < c.min_inliers:
             continue
-        ag, _ = est.agreement(lv_a, lv_b, A, c.agreement_tolerance, boxes, walls)
+        ag, _ = verify.agreement(lv_a, lv_b, A, c.agreement_tolerance, boxes, walls)
         scored.append((ag, inl, A))
     scored.sort(key=lambda t: (t[0], t[1]), reverse=True)
     best: Optional[est.PairEstimate] = None
@@ -219,9 +220,9 @@ def _estimate_crops(config: MergeConfig, pa: PairInput, ch: PairInput, seed: int
                      and not _same_place(A, scored[0][2], centre, pa.resolution)))
         if c.refine and close and ag >= c.min_agreement - 0.2:
             h.A = refined(c, pa, ch, A)
-        good_inl = int(est._inliers(h.A, src[unique], dst[unique], th2).sum()) if r.matches else 0
+        good_inl = int(est.inlier_mask(h.A, src[unique], dst[unique], th2).sum()) if r.matches else 0
         h.reliability = good_inl / float(max(1, r.matches))
-        h.agreement, h.overlap = est.agreement(lv_a, lv_b, h.A, c.agreement_tolerance, boxes, walls)
+        h.agreement, h.overlap = verify.agreement(lv_a, lv_b, h.A, c.agreement_tolerance, boxes, walls)
         contradiction = contradicts_prior(c, pa, ch, h.A)
         if contradiction:
             h.reason = contradiction

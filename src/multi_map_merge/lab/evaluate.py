@@ -60,8 +60,8 @@ import cv2
 import numpy as np
 import yaml
 
-from .grid import FREE, OCCUPIED, Grid, GridError
-from .transforms import cell_to_metric, inverse, pose_distance, se2, xyyaw
+from ..core.grid import FREE, OCCUPIED, Grid, GridError
+from ..core.transforms import cell_to_metric, inverse, pose_distance, se2, xyyaw
 
 DEFAULT_MAX_DISTANCE = 0.10          # m: two cells at 0.05 m (see the module docstring)
 ICP_STAGES = (8.0, 4.0, 2.0, 1.0)    # correspondence distances of the ICP runs, x max_distance
@@ -121,8 +121,8 @@ def coarse_pose(grid: Grid, truth: Grid) -> Tuple[Optional[np.ndarray], str]:
 
     The merger runs in this process (``workers: 1``): features, matching, RANSAC, ICP and the
     verification on the grids, exactly as for two robots."""
-    from .config import MergeConfig
-    from .merger import MapMerger
+    from ..core.config import MergeConfig
+    from ..core.merger import MapMerger
     try:
         m = MapMerger(MergeConfig.from_dict({'workers': 1, 'reference_robot': 'truth'}))
         m.update_map('truth', truth)
@@ -370,7 +370,7 @@ def main(argv: Optional[List[str]] = None) -> int:
     import argparse
     import json
     import sys
-    from .mapio import MapFileError, load_map
+    from ..core.mapio import MapFileError, load_map
 
     def fail(msg: str) -> int:
         print('evaluate_map: %s' % msg, file=sys.stderr)

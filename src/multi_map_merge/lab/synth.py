@@ -11,8 +11,8 @@ from typing import List, Sequence, Tuple
 import cv2
 import numpy as np
 
-from .grid import Grid, known_bbox, levels_to_values
-from .transforms import cell_to_metric, se2
+from ..core.grid import Grid, known_bbox, levels_to_values
+from ..core.transforms import cell_to_metric, se2
 
 
 def cut_piece(world: Grid, rect: Tuple[int, int, int, int], pose: Sequence[float],

@@ -25,13 +25,13 @@ from typing import Dict, List, Optional, Tuple
 
 import numpy as np
 
-from . import estimate as est
+from . import matching as est
 from .config import MergeConfig
 from .features import Features
 from .grid import DEFAULT_FREE_THRESH, DEFAULT_OCC_THRESH, Grid, known_bbox, known_values, rescale
-from .merge import Lattice, Patch, composite, lattice_for, warp_patch
-from . import posegraph
-from .pairs import PairInput, compute_features, crop_known, estimate_pair
+from .composite import Lattice, Patch, composite, lattice_for, warp_patch
+from . import posegraph, verify
+from .pair import PairInput, compute_features, crop_known, estimate_pair
 from .transforms import image_to_pose, inverse, pose_distance, pose_to_image, se2, xyyaw
 
 
@@ -333,7 +333,7 @@ class MapMerger:
         for key, e in pending:
             pa, ch = maps[key[0]], maps[key[1]]
             A = pose_to_image(e.T, pa.grid.resolution, pa.grid.origin, ch.grid.resolution, ch.grid.origin)
-            ag, ov = est.agreement(pa.grid.levels(c.free_thresh, c.occupied_thresh),
+            ag, ov = verify.agreement(pa.grid.levels(c.free_thresh, c.occupied_thresh),
                                    ch.grid.levels(c.free_thresh, c.occupied_thresh), A,
                                    c.agreement_tolerance)
             ok = ov >= c.min_overlap_cells and ag >= c.min_agreement
@@ -496,7 +496,7 @@ class MapMerger:
         was measured on the grids of its time)."""
         c = self.config
         A = pose_to_image(T, pa.grid.resolution, pa.grid.origin, ch.grid.resolution, ch.grid.origin)
-        ag, _ = est.agreement(pa.grid.levels(c.free_thresh, c.occupied_thresh),
+        ag, _ = verify.agreement(pa.grid.levels(c.free_thresh, c.occupied_thresh),
                               ch.grid.levels(c.free_thresh, c.occupied_thresh), A, c.agreement_tolerance)
         return ag
 
