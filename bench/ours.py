@@ -26,7 +26,7 @@ SPEC: {"paths": [map yaml...], "truth": [3x3 pose of map k in map 0's frame] or 
                 is measured
   live_ms       compose() + publishing with one robot's map changed, the others' warps kept
                 (round robin over the robots but the reference), COMPOSE_REPS times, median
-  publish_ms    ros_adapter.grid_to_msg (numpy_msg OccupancyGrid) + msg.serialize(BytesIO) of
+  publish_ms    ros.convert.grid_to_msg (numpy_msg OccupancyGrid) + msg.serialize(BytesIO) of
                 the merged grid, COMPOSE_REPS times back to back, median (publish_first_ms: once
                 per cycle, after the first compose)
   rss_mb        peak RSS: this process's ru_maxrss plus each worker process's VmHWM
@@ -53,7 +53,7 @@ def publish(grid):
     """(seconds, bytes) of what the node does to publish a merged grid: a numpy_msg
     OccupancyGrid, serialised."""
     import rospy
-    from multi_map_merge.ros.node import grid_to_msg
+    from multi_map_merge.ros.convert import grid_to_msg
     t = time.perf_counter()
     msg = grid_to_msg(grid, rospy.Time(0), 'map')
     buf = io.BytesIO()

@@ -27,7 +27,7 @@ from test_merge_node import (Listener, RobotPlayer, compare_with_truth,  # noqa:
                              data_file, expected_canvas, fmt_pose, lookup, make_pieces,
                              union_mask_of, wait_until)
 from multi_map_merge.core.mapio import load_map  # noqa: E402
-from multi_map_merge.ros.node import grid_to_msg  # noqa: E402
+from multi_map_merge.ros.convert import grid_to_msg  # noqa: E402
 from multi_map_merge.core.transforms import pose_distance  # noqa: E402
 
 PKG = 'multi_map_merge'

@@ -20,7 +20,7 @@ from test_merge_node import Listener, RobotPlayer, data_file, make_pieces, wait_
 from test_bad_input import same_map  # noqa: E402
 from test_fuzz import bad_grids  # noqa: E402
 from multi_map_merge.core.mapio import load_map  # noqa: E402
-from multi_map_merge.ros.node import grid_to_msg, NumpyGrid  # noqa: E402
+from multi_map_merge.ros.convert import grid_to_msg, NumpyGrid  # noqa: E402
 from multi_map_merge.core.grid import Grid  # noqa: E402
 
 PKG = 'multi_map_merge'

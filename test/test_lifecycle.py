@@ -24,7 +24,7 @@ from test_merge_node import (Listener, RobotPlayer, data_file, lookup, make_piec
                              wait_until)
 from multi_map_merge.core.grid import Grid  # noqa: E402
 from multi_map_merge.core.mapio import load_map  # noqa: E402
-from multi_map_merge.ros.node import NumpyGrid, grid_from_msg  # noqa: E402
+from multi_map_merge.ros.convert import grid_from_msg, NumpyGrid  # noqa: E402
 from multi_map_merge.core.transforms import pose_distance  # noqa: E402
 
 PKG = 'multi_map_merge'

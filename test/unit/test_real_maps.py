@@ -199,7 +199,7 @@ def test_isr_small_live_orders_never_end_on_a_look_alike(shared_data):
     with."""
     import random
     from multi_map_merge.core.config import MergeConfig
-    from multi_map_merge.ros.node import read_bag_maps
+    from multi_map_merge.ros.replay import read_bag_maps
     bags = [os.path.join(shared_data, 'mrgs/bags_gmapping/isr_small_gmapping_%d.bag' % k) for k in (1, 2, 3)]
     seq = []
     for k, b in enumerate(bags):

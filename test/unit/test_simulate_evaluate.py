@@ -13,7 +13,7 @@ from multi_map_merge.lab.evaluate import score_map, transform_errors
 from multi_map_merge.core.grid import FREE, OCCUPIED, Grid
 from multi_map_merge.core.mapio import load_map
 from multi_map_merge.core.posegraph import optimise, worst_residual
-from multi_map_merge.core.transforms import se2, wrap_angle
+from multi_map_merge.core.transforms import relative, se2, wrap_angle
 
 HOUSE = os.path.join(DATA, 'aws_small_house.yaml')
 
@@ -85,11 +85,11 @@ def test_errors_grow_with_distance(team):
     robots, lone = team
 
     def slam_error(run):   # end pose of the SLAM estimate against the truth, in the map frame
-        truth = sim.relative(run.true[0], run.true[-1])
+        truth = relative(run.true[0], run.true[-1])
         return math.hypot(*(run.slam[-1, :2] - truth[:2])), abs(wrap_angle(run.slam[-1, 2] - truth[2]))
 
     def odom_error(run):
-        truth = sim.relative(run.true[0], run.true[-1])
+        truth = relative(run.true[0], run.true[-1])
         return math.hypot(*(run.odom[-1, :2] - truth[:2]))
 
     for run in robots + [lone]:

@@ -142,3 +142,19 @@ def wrap_angle(a):
 def turn_between(A: np.ndarray, B: np.ndarray) -> float:
     """|angle| in radians (0..pi) between the rotations of two 3x3 rigid transforms."""
     return abs(float(wrap_angle(math.atan2(A[1, 0], A[0, 0]) - math.atan2(B[1, 0], B[0, 0]))))
+
+
+# ---- poses as arrays of (x, y, yaw), for trajectories
+def compose(p: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """p ⊕ d for arrays of (x, y, yaw): d expressed in p's frame."""
+    c, s = np.cos(p[..., 2]), np.sin(p[..., 2])
+    return np.stack([p[..., 0] + c * d[..., 0] - s * d[..., 1],
+                     p[..., 1] + s * d[..., 0] + c * d[..., 1],
+                     wrap_angle(p[..., 2] + d[..., 2])], axis=-1)
+
+
+def relative(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a^-1 ⊕ b: pose b seen from pose a."""
+    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
+    dx, dy = b[..., 0] - a[..., 0], b[..., 1] - a[..., 1]
+    return np.stack([c * dx + s * dy, -s * dx + c * dy, wrap_angle(b[..., 2] - a[..., 2])], axis=-1)

@@ -42,7 +42,7 @@ def write_config(base_yaml: str, out_yaml: str, overrides: Dict[str, object]) ->
 
 
 def save_record(rec: Dict, out_dir: str) -> bool:
-    """Write a replay's record (see ros.node.record_replay): merged.{yaml,pgm} and
+    """Write a replay's record (see ros.replay.record_replay): merged.{yaml,pgm} and
     record.yaml. False when no merged map was ever received."""
     os.makedirs(out_dir, exist_ok=True)
     doc = {'clock': rec.get('clock'), 'robots': rec['robots']}

@@ -8,7 +8,7 @@ Writes ``house.bag`` (the team: ``/tb3_N/scan``, ``/tb3_N/odom``, ``/tb3_N/map``
 and ``house.truth.yaml``: the ground-truth map and the pose of every robot's map frame in it,
 read by ``evaluate_map --truth``. Scans are ray cast in the world map (LDS-02), or with
 ``--carmen`` the real scans of a CARMEN log cut into the robots' stretches. See
-:mod:`multi_map_merge.simulate` for the models. Exit status 2 names a bad input file.
+:mod:`multi_map_merge.lab.simulate` for the models. Exit status 2 names a bad input file.
 """
 from __future__ import annotations
 
@@ -76,7 +76,7 @@ def main(argv: Optional[List[str]] = None) -> int:
     except MapFileError as e:
         print('make_robot_bags: %s' % e, file=sys.stderr)
         return 2
-    from ..ros.node import write_robot_bag   # rosbag: only when writing
+    from ..ros.replay import write_robot_bag   # rosbag: only when writing
     base = a.output[:-4] if a.output.endswith('.bag') else a.output
     os.makedirs(os.path.dirname(os.path.abspath(base)), exist_ok=True)
     extra = dict(CARMEN_DEFAULTS) if a.carmen else {}

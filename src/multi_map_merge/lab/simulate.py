@@ -38,7 +38,7 @@ import cv2
 import numpy as np
 
 from ..core.grid import FREE, OCCUPIED, Grid
-from ..core.transforms import wrap_angle
+from ..core.transforms import compose, relative, wrap_angle
 
 LDS02_OFFSET = (-0.032, 0.0, 0.172)   # base_footprint -> base_scan on a Burger, metres
 
@@ -123,21 +123,6 @@ class RobotRun:
 
 
 # ---------------------------------------------------------------------------------------- poses
-
-def compose(p: np.ndarray, d: np.ndarray) -> np.ndarray:
-    """p ⊕ d for arrays of (x, y, yaw): d expressed in p's frame."""
-    c, s = np.cos(p[..., 2]), np.sin(p[..., 2])
-    return np.stack([p[..., 0] + c * d[..., 0] - s * d[..., 1],
-                     p[..., 1] + s * d[..., 0] + c * d[..., 1],
-                     wrap_angle(p[..., 2] + d[..., 2])], axis=-1)
-
-
-def relative(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """a^-1 ⊕ b: pose b seen from pose a."""
-    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
-    dx, dy = b[..., 0] - a[..., 0], b[..., 1] - a[..., 1]
-    return np.stack([c * dx + s * dy, -s * dx + c * dy, wrap_angle(b[..., 2] - a[..., 2])], axis=-1)
-
 
 def integrate(increments: np.ndarray) -> np.ndarray:
     """Poses from the identity by composing (K-1, 3) increments: (K, 3)."""
