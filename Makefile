@@ -15,7 +15,7 @@ APT_PKGS := python3-rospy python3-tf2-ros python3-nav-msgs python3-rostest pytho
   python3-pytest python3-matplotlib python3-open3d python3-tf2-msgs
 ROS_ENV := source $(SETUP) && export ROS_HOME=$(WS)/ros_home ROS_LOG_DIR=$(WS)/ros_home/log
 
-.PHONY: deps build test unit demo bench clean
+.PHONY: deps build test unit demo bench clean lint
 
 deps: $(WS)/.deps-ok
 $(WS)/.deps-ok:
@@ -59,3 +59,23 @@ clean:
 bench: build
 	@$(ROS_ENV) && cd $(CURDIR) && (dpkg-query -W python3-matplotlib >/dev/null 2>&1 || apt-get install -y -q python3-matplotlib >/dev/null) && \
 	python3 bench/run_bench.py && python3 bench/live_gap.py
+
+# Lint: ruff (pycodestyle, pyflakes, bugbear, isort; ruff.toml) over src, the Python scripts,
+# test and bench. Pinned, in a venv of its own under the workspace (Debian's python3 has no ruff).
+RUFF_VERSION := 0.6.9
+LINT_PKGS    := python3-venv
+RUFF         := $(WS)/ruff-$(RUFF_VERSION)/bin/ruff
+lint: $(RUFF)
+	@$(RUFF) check --no-cache src scripts test bench
+
+$(RUFF):
+	@mkdir -p $(WS)
+	@missing=$$(for p in $(LINT_PKGS); do dpkg-query -W -f='$${Status}\n' $$p 2>/dev/null | grep -q 'install ok installed' || echo $$p; done); \
+	if [ -n "$$missing" ]; then \
+	  echo "installing:" $$missing; \
+	  apt-get update -q >/dev/null && apt-get install -y -q --no-install-recommends $$missing >/dev/null || exit 1; \
+	fi
+	@rm -rf $(WS)/ruff-$(RUFF_VERSION)
+	@/usr/bin/python3 -m venv $(WS)/ruff-$(RUFF_VERSION) && \
+	  $(WS)/ruff-$(RUFF_VERSION)/bin/pip install -q ruff==$(RUFF_VERSION) \
+	  || { rm -rf $(WS)/ruff-$(RUFF_VERSION); exit 1; }

@@ -32,6 +32,7 @@ sys.path.insert(0, os.path.join(REPO, 'src'))
 from inputs import pieces_windows, world_map  # noqa: E402
 from peer import live_node  # noqa: E402
 from report import machine  # noqa: E402
+
 from multi_map_merge.core.mapio import save_map  # noqa: E402
 
 
@@ -78,8 +79,8 @@ def measure(seconds, robots, merge_period):
     """Record /map and TF arrival times and estimation durations for ``seconds``."""
     import rospy
     from diagnostic_msgs.msg import DiagnosticArray
-    from rospy.numpy_msg import numpy_msg
     from nav_msgs.msg import OccupancyGrid
+    from rospy.numpy_msg import numpy_msg
     from tf2_msgs.msg import TFMessage
     maps, tfs, est = [], [], []
     children = {'%s/map' % r for r in robots}

@@ -53,6 +53,7 @@ def publish(grid):
     """(seconds, bytes) of what the node does to publish a merged grid: a numpy_msg
     OccupancyGrid, serialised."""
     import rospy
+
     from multi_map_merge.ros.convert import grid_to_msg
     t = time.perf_counter()
     msg = grid_to_msg(grid, rospy.Time(0), 'map')
@@ -69,7 +70,7 @@ def worker_peaks_mb():
         for pid in list(mm._POOL._processes):
             try:
                 with open('/proc/%d/status' % pid) as f:
-                    total += [int(l.split()[1]) for l in f if l.startswith('VmHWM')][0] / 1024.0
+                    total += [int(line.split()[1]) for line in f if line.startswith('VmHWM')][0] / 1024.0
             except (OSError, IndexError):
                 pass
     return total
@@ -181,10 +182,10 @@ def main():
     if sys.argv[1] == '--serve-estimate':
         return serve_estimate(json.load(open(sys.argv[2])))
     spec = json.load(open(sys.argv[1]))
+    import multi_map_merge.core.merger as mm
     from multi_map_merge.core.config import MergeConfig
     from multi_map_merge.core.features import FeatureExtractor
     from multi_map_merge.core.mapio import load_map
-    import multi_map_merge.core.merger as mm
     from multi_map_merge.core.merger import MapMerger, RobotMap
 
     paths, truth, reps = spec['paths'], spec.get('truth'), int(spec['reps'])
@@ -260,7 +261,8 @@ def main():
     print(json.dumps({
         'features_ms': med(feat), 'pair_ms': med(pair), 'cold_ms': med(cold), 'warm_ms': med(warm),
         'cold_first_ms': cold[0] * 1000.0, 'pool_start_ms': pool_start,
-        'ingest_ms': med(ingest), 'compose_first_ms': med(comp), 'compose_ms': b2b['compose_ms'], 'compose_again_ms': med(comp_again),
+        'ingest_ms': med(ingest), 'compose_first_ms': med(comp), 'compose_ms': b2b['compose_ms'],
+        'compose_again_ms': med(comp_again),
         'publish_first_ms': med(pub), 'publish_ms': b2b['publish_ms'], 'live_ms': b2b['live_ms'],
         'published_bytes': published_bytes,
         'rss_mb': resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0 + worker_peaks_mb(),

@@ -8,15 +8,16 @@
 The 13 buildings' maps of ``../shared/data`` (the 11 ground-truth maps and the two AWS maps)
 are each cut into overlapping robots' maps at known random rigid poses (``split_rects`` into
 4, 4 windows of half of it, 6 windows of 35% of it); every robot's map is given to a fresh
-``MapMerger`` and one estimation cycle runs: every pair of robots is estimated. Then one robot's map grows (a larger cut at the
-same pose) and a second cycle runs, so the keep / switch rules and the placement hysteresis
-act on kept links. The digest holds, per pair and cycle, the estimate (the transform between
-cells, matches, inliers, inlier ratio, agreement, overlap, accepted, the reason, the runner-up),
-every placement (pose, chain, inlier ratio, agreement) and a checksum of the composed map.
-Floats are written exactly (``repr``): any change of behaviour changes the file.
+``MapMerger`` and one estimation cycle runs: every pair of robots is estimated. Then one
+robot's map grows (a larger cut at the same pose) and a second cycle runs, so the keep / switch
+rules and the placement hysteresis act on kept links. The digest holds, per pair and cycle,
+the estimate (the transform between cells, matches, inliers, inlier ratio, agreement, overlap,
+accepted, the reason, the runner-up), every placement (pose, chain, inlier ratio, agreement)
+and a checksum of the composed map. Floats are written exactly (``repr``): any change of
+behaviour changes the file.
 
-It only reads the merger through its public package, so it runs unchanged before and after a
-restructuring (the import paths of both layouts are tried).
+The import paths of both layouts (flat, and core/ lab/) are tried, and the attribute names of
+before and after renames, so the same script runs before and after a restructuring.
 """
 from __future__ import annotations
 
@@ -105,7 +106,7 @@ def _matrix(A):
 
 def _attempts(m):
     """{(parent, child): the pair's last estimate} of a merger."""
-    return getattr(m, '_attempts')
+    return m._attempts
 
 
 def pair_record(key, r):

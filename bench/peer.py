@@ -26,7 +26,6 @@ import tempfile
 import time
 
 import numpy as np
-
 from inputs import SHARED
 
 PEER = os.path.join(SHARED, 'peers', 'mexplore')

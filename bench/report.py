@@ -22,7 +22,7 @@ def machine():
                     info['cpu_model'] = line.split(':', 1)[1].strip()
                     break
         with open('/proc/meminfo') as f:
-            kb = [l for l in f if l.startswith('MemTotal')][0].split()[1]
+            kb = [line for line in f if line.startswith('MemTotal')][0].split()[1]
         info['mem_total_mb'] = int(kb) // 1024
     except (OSError, IndexError):
         pass

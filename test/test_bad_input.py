@@ -23,12 +23,22 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from rosgraph_msgs.msg import Log
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from test_merge_node import (Listener, RobotPlayer, compare_with_truth,  # noqa: E402
-                             data_file, expected_canvas, fmt_pose, lookup, make_pieces,
-                             union_mask_of, wait_until)
-from multi_map_merge.core.mapio import load_map  # noqa: E402
-from multi_map_merge.ros.convert import grid_to_msg  # noqa: E402
-from multi_map_merge.core.transforms import pose_distance  # noqa: E402
+from test_merge_node import (
+    Listener,
+    RobotPlayer,
+    compare_with_truth,
+    data_file,
+    expected_canvas,
+    fmt_pose,
+    lookup,
+    make_pieces,
+    union_mask_of,
+    wait_until,
+)
+
+from multi_map_merge.core.mapio import load_map
+from multi_map_merge.core.transforms import pose_distance
+from multi_map_merge.ros.convert import grid_to_msg
 
 PKG = 'multi_map_merge'
 POSES = [(0.5, 1.0, math.radians(-30.0)), (-2.0, 3.0, math.radians(150.0))]
@@ -166,7 +176,7 @@ class TestBadInput(unittest.TestCase):
             t0 = time.time()
             pub.publish(self._malformed(kind))
 
-            def refused():
+            def refused(t0=t0, reason=reason):
                 st = self._status('tb3_1', t0)
                 return st if st and st[0].level == DiagnosticStatus.ERROR and reason in st[0].message else None
             st = wait_until(refused, 10.0)
@@ -174,7 +184,7 @@ class TestBadInput(unittest.TestCase):
                             % (kind, reason, self._status('tb3_1')))
             print('%s -> diagnostics: %s' % (kind, st[0].message))
 
-            def logged():
+            def logged(reason=reason):
                 with self.log_lock:
                     return [m for m in self.logs if m.level == Log.ERROR and 'tb3_1' in m.msg and reason in m.msg]
             lg = wait_until(logged, 5.0)

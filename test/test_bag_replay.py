@@ -6,21 +6,18 @@ import os
 import subprocess
 import sys
 import tempfile
-import time
 import unittest
 
 import numpy as np
 import rospkg
-import rospy
 import rostest
-
 from rostest_helpers import stop_launch
 
-from multi_map_merge.lab.evaluate import load_truth, score_map, transform_errors
 from multi_map_merge.core.mapio import load_map
+from multi_map_merge.core.transforms import se2
+from multi_map_merge.lab.evaluate import load_truth, score_map, transform_errors
 from multi_map_merge.ros.replay import record_replay
 from multi_map_merge.ros.tools import init_node
-from multi_map_merge.core.transforms import se2
 
 ROBOTS = ['tb3_0', 'tb3_1', 'tb3_2']
 

@@ -16,12 +16,13 @@ from rospy.numpy_msg import numpy_msg
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), 'unit'))
-from test_merge_node import Listener, RobotPlayer, data_file, make_pieces, wait_until  # noqa: E402
-from test_bad_input import same_map  # noqa: E402
-from test_fuzz import bad_grids  # noqa: E402
-from multi_map_merge.core.mapio import load_map  # noqa: E402
-from multi_map_merge.ros.convert import grid_to_msg, NumpyGrid  # noqa: E402
-from multi_map_merge.core.grid import Grid  # noqa: E402
+from test_bad_input import same_map
+from test_fuzz import bad_grids
+from test_merge_node import Listener, RobotPlayer, data_file, make_pieces, wait_until
+
+from multi_map_merge.core.grid import Grid
+from multi_map_merge.core.mapio import load_map
+from multi_map_merge.ros.convert import NumpyGrid, grid_to_msg
 
 PKG = 'multi_map_merge'
 

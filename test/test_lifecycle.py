@@ -16,16 +16,16 @@ import tf2_ros
 import yaml
 from map_msgs.msg import OccupancyGridUpdate
 from rosgraph_msgs.msg import Log
-from tf2_msgs.msg import TFMessage
 from rospy.numpy_msg import numpy_msg
+from tf2_msgs.msg import TFMessage
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from test_merge_node import (Listener, RobotPlayer, data_file, lookup, make_pieces,  # noqa: E402
-                             wait_until)
-from multi_map_merge.core.grid import Grid  # noqa: E402
-from multi_map_merge.core.mapio import load_map  # noqa: E402
-from multi_map_merge.ros.convert import grid_from_msg, NumpyGrid  # noqa: E402
-from multi_map_merge.core.transforms import pose_distance  # noqa: E402
+from test_merge_node import Listener, RobotPlayer, data_file, lookup, make_pieces, wait_until
+
+from multi_map_merge.core.grid import Grid
+from multi_map_merge.core.mapio import load_map
+from multi_map_merge.core.transforms import pose_distance
+from multi_map_merge.ros.convert import NumpyGrid, grid_from_msg
 
 PKG = 'multi_map_merge'
 

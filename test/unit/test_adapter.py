@@ -6,8 +6,8 @@ import pytest
 import rospy
 
 from multi_map_merge.core.grid import Grid, GridError
-from multi_map_merge.ros.convert import grid_from_msg, grid_to_msg, transform_msg
 from multi_map_merge.core.transforms import se2
+from multi_map_merge.ros.convert import grid_from_msg, grid_to_msg, transform_msg
 
 
 def test_round_trip_keeps_cells_and_origin():

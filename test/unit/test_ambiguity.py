@@ -5,14 +5,14 @@ import math
 import os
 
 import numpy as np
+from conftest import DATA, pose_error
 
 from multi_map_merge.core.config import MergeConfig
 from multi_map_merge.core.grid import Grid, known_bbox
 from multi_map_merge.core.mapio import load_map
 from multi_map_merge.core.merger import MapMerger
-from multi_map_merge.lab.synth import cut_piece
 from multi_map_merge.core.transforms import xyyaw
-from conftest import DATA, pose_error
+from multi_map_merge.lab.synth import cut_piece
 
 
 def merged(grids, **kw):

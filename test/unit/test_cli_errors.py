@@ -2,9 +2,9 @@ import os
 import shutil
 
 import pytest
+from conftest import DATA
 
 from multi_map_merge.core import offline as cli
-from conftest import DATA
 
 
 @pytest.fixture
@@ -76,6 +76,7 @@ def test_duplicate_stems_and_unknown_reference(tmp_path, capsys, good):
 def test_errors_through_the_script(tmp_path):
     """The installed entry point (scripts/merge_maps) exits 2 too, message on stderr."""
     import subprocess
+
     from conftest import REPO
     env = dict(os.environ, PYTHONPATH=os.path.join(REPO, 'src'))
     r = subprocess.run(['/usr/bin/python3', os.path.join(REPO, 'scripts', 'merge_maps'),

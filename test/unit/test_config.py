@@ -2,9 +2,9 @@ import os
 from dataclasses import fields
 
 import yaml
+from conftest import REPO
 
 from multi_map_merge.core.config import MergeConfig
-from conftest import REPO
 
 
 def test_yaml_defaults_equal_code_defaults():

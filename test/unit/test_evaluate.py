@@ -8,16 +8,14 @@ import subprocess
 import numpy as np
 import pytest
 import yaml
+from conftest import DATA, REPO, pose_error
 from scipy.spatial import cKDTree
 
-from conftest import DATA, REPO, pose_error
-
-from multi_map_merge.lab.evaluate import (load_transforms, load_truth, occupied_points, score_map,
-                                      transform_errors)
 from multi_map_merge.core.grid import FREE, OCCUPIED, Grid, GridError
 from multi_map_merge.core.mapio import load_map, save_map
-from multi_map_merge.lab.synth import cut_piece, random_poses
 from multi_map_merge.core.transforms import inverse, se2, xyyaw
+from multi_map_merge.lab.evaluate import load_transforms, load_truth, occupied_points, score_map, transform_errors
+from multi_map_merge.lab.synth import cut_piece, random_poses
 
 HOUSE = os.path.join(DATA, 'aws_small_house.yaml')
 INTEL = os.path.join(DATA, 'intel.yaml')

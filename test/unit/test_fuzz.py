@@ -3,12 +3,12 @@ import os
 
 import numpy as np
 import pytest
+from conftest import DATA
 
 from multi_map_merge.core.grid import Grid, GridError, apply_update, make_grid
 from multi_map_merge.core.mapio import load_map
 from multi_map_merge.core.merger import MapMerger
 from multi_map_merge.lab.synth import cut_piece, random_poses, split_rects
-from conftest import DATA
 
 
 def bad_grids(rng, n):

@@ -2,8 +2,18 @@
 import numpy as np
 import pytest
 
-from multi_map_merge.core.grid import (FREE, OCCUPIED, UNKNOWN, Grid, GridError, apply_update, classify,
-                                  make_grid, rescale, validate)
+from multi_map_merge.core.grid import (
+    FREE,
+    OCCUPIED,
+    UNKNOWN,
+    Grid,
+    GridError,
+    apply_update,
+    classify,
+    make_grid,
+    rescale,
+    validate,
+)
 from multi_map_merge.core.mapio import MapFileError, grid_to_pgm, load_map, save_map
 
 
@@ -64,6 +74,7 @@ def test_pgm_round_trip_and_orientation(tmp_path):
 def test_load_real_map_orientation(tmp_path):
     """The shipped intel map read back equals itself after a save (no double flip)."""
     import os
+
     from conftest import DATA
     g = load_map(os.path.join(DATA, 'intel.yaml'))
     save_map(g, str(tmp_path / 'i.yaml'))
@@ -106,6 +117,7 @@ def test_rescale_real_map_never_loses_a_wall():
     """intel at 0.05 m -> 0.1 m -> 0.05 m: every wall cell stays a wall (max-pooling), free
     space stays mostly free, and the origin corner does not move."""
     import os
+
     from conftest import DATA
     g = load_map(os.path.join(DATA, 'intel.yaml'))
     coarse = rescale(g, 0.1)

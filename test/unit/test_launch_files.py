@@ -14,11 +14,10 @@ import yaml
 roslaunch = pytest.importorskip('roslaunch')
 import roslib.packages  # noqa: E402
 import rospkg  # noqa: E402
+from conftest import REPO  # noqa: E402
 from roslaunch.config import ROSLaunchConfig  # noqa: E402
 from roslaunch.core import Node  # noqa: E402
 from roslaunch.xmlloader import XmlLoader  # noqa: E402
-
-from conftest import REPO  # noqa: E402
 
 LAUNCH = os.path.join(REPO, 'launch')
 RVIZ = os.path.join(REPO, 'rviz', 'multi_map_merge.rviz')

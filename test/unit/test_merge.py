@@ -3,8 +3,8 @@ import math
 
 import numpy as np
 
-from multi_map_merge.core.grid import Grid
 from multi_map_merge.core.composite import Lattice, composite, lattice_for, warp_patch
+from multi_map_merge.core.grid import Grid
 from multi_map_merge.core.transforms import se2
 
 RES = 0.5

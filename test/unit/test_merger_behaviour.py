@@ -3,6 +3,7 @@ import os
 
 import numpy as np
 import pytest
+from conftest import DATA, pose_error, truth
 
 from multi_map_merge.core.config import MergeConfig
 from multi_map_merge.core.grid import Grid, known_bbox
@@ -10,7 +11,6 @@ from multi_map_merge.core.mapio import load_map
 from multi_map_merge.core.merger import MapMerger
 from multi_map_merge.core.state import load_state, save_state
 from multi_map_merge.lab.synth import cut_piece
-from conftest import DATA, pose_error, truth
 
 
 @pytest.fixture(scope='module')

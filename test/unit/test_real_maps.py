@@ -6,13 +6,13 @@ import os
 
 import numpy as np
 import pytest
+from conftest import DATA, REPO, pose_error, truth
 
 from multi_map_merge.core import verify
 from multi_map_merge.core.grid import FREE, OCCUPIED
 from multi_map_merge.core.mapio import load_map
 from multi_map_merge.core.merger import MapMerger
 from multi_map_merge.core.transforms import pose_to_image, xyyaw
-from conftest import DATA, REPO, pose_error, truth
 
 MAZE = os.path.join(DATA, 'tb3_dans_maze')
 
@@ -198,6 +198,7 @@ def test_isr_small_live_orders_never_end_on_a_look_alike(shared_data):
     the merger once ended 1.6-2.3 m off; it must end on a placement the last grids agree
     with."""
     import random
+
     from multi_map_merge.core.config import MergeConfig
     from multi_map_merge.ros.replay import read_bag_maps
     bags = [os.path.join(shared_data, 'mrgs/bags_gmapping/isr_small_gmapping_%d.bag' % k) for k in (1, 2, 3)]
@@ -236,6 +237,7 @@ def test_look_alike_windows_with_little_evidence_are_not_placed(shared_data, wor
     import sys
     sys.path.insert(0, os.path.join(REPO, 'bench'))
     import inputs
+
     from multi_map_merge.core.config import MergeConfig
     pieces = inputs.pieces_windows(inputs.world_map(world), robots, frac, seed)
     errors = {}

@@ -5,13 +5,13 @@ import subprocess
 import numpy as np
 import pytest
 import yaml
+from conftest import DATA, REPO, pose_error, truth
 
 from multi_map_merge.core import offline as cli
 from multi_map_merge.core.mapio import load_map, save_map
 from multi_map_merge.core.merger import MapMerger
-from multi_map_merge.lab.synth import cut_piece, random_poses, split_rects
 from multi_map_merge.core.transforms import se2
-from conftest import DATA, REPO, pose_error, truth
+from multi_map_merge.lab.synth import cut_piece, random_poses, split_rects
 
 CASES = [(world, n, seed) for world in ('intel', 'aws_small_house') for n in (2, 3, 4) for seed in (0, 1, 2, 3)]
 
@@ -84,6 +84,7 @@ def check_merged_is_the_world(merged, w, ps, rs):
     """The merged map (frame of piece 0) warped back into the world grid covers the union of
     the cut rectangles and says there what the world says; nothing lies outside it."""
     import cv2
+
     from multi_map_merge.core.grid import FREE, OCCUPIED
     from multi_map_merge.core.transforms import cell_to_metric, inverse
     assert merged.resolution == pytest.approx(w.resolution)

@@ -5,15 +5,14 @@ import os
 
 import numpy as np
 import pytest
-
 from conftest import DATA, pose_error
 
-from multi_map_merge.lab import simulate as sim
-from multi_map_merge.lab.evaluate import score_map, transform_errors
 from multi_map_merge.core.grid import FREE, OCCUPIED, Grid
 from multi_map_merge.core.mapio import load_map
 from multi_map_merge.core.posegraph import optimise, worst_residual
 from multi_map_merge.core.transforms import relative, se2, wrap_angle
+from multi_map_merge.lab import simulate as sim
+from multi_map_merge.lab.evaluate import score_map, transform_errors
 
 HOUSE = os.path.join(DATA, 'aws_small_house.yaml')
 
@@ -207,6 +206,7 @@ def test_carmen_reader(tmp_path):
 def test_evaluate_map_cli(tmp_path):
     import subprocess
     import sys
+
     from conftest import REPO
     env = dict(os.environ, PYTHONPATH=os.path.join(REPO, 'src'))
     exe = [sys.executable, os.path.join(REPO, 'scripts', 'evaluate_map')]

@@ -2,13 +2,19 @@ import math
 
 import numpy as np
 import pytest
-
+from conftest import DATA
 
 from multi_map_merge.core.mapio import load_map
+from multi_map_merge.core.transforms import (
+    apply,
+    cell_to_metric,
+    image_to_pose,
+    pose_to_image,
+    rigid_from_points,
+    se2,
+    xyyaw,
+)
 from multi_map_merge.lab.synth import cut_piece
-from multi_map_merge.core.transforms import (apply, cell_to_metric, image_to_pose, pose_to_image,
-                                        rigid_from_points, se2, xyyaw)
-from conftest import DATA
 
 
 def test_cell_to_metric_by_hand():

@@ -2,7 +2,7 @@
 defaults for ROS users (a unit test keeps the two equal)."""
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields, asdict
+from dataclasses import asdict, dataclass, field, fields
 from typing import Any, Dict, List
 
 

@@ -114,7 +114,7 @@ _VALUES_LUT[:3] = np.array([-1, 0, 100], np.int8).view(np.uint8)
 
 def levels_to_values(levels: np.ndarray) -> np.ndarray:
     """Levels -> OccupancyGrid int8 values: -1 unknown, 0 free, 100 occupied."""
-    import cv2   # cv2.LUT is about 10x faster than numpy fancy indexing on big grids
+    import cv2  # cv2.LUT is about 10x faster than numpy fancy indexing on big grids
     # A slice of a grid goes in as it is (OpenCV takes its row stride): no copy first.
     strided_ok = levels.dtype == np.uint8 and levels.strides[-1] == 1
     lv = levels if strided_ok else np.ascontiguousarray(levels, np.uint8)

@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 import yaml
 
-from .grid import Grid, GridError, OCCUPIED, FREE, validate
+from .grid import FREE, OCCUPIED, Grid, GridError, validate
 
 
 class MapFileError(Exception):

@@ -26,14 +26,13 @@ from typing import Dict, List, Optional, Tuple
 import numpy as np
 
 from . import matching as est
+from . import posegraph, verify
+from .composite import Lattice, Patch, composite, lattice_for, warp_patch
 from .config import MergeConfig
 from .features import Features
 from .grid import DEFAULT_FREE_THRESH, DEFAULT_OCC_THRESH, Grid, known_bbox, known_values, rescale
-from .composite import Lattice, Patch, composite, lattice_for, warp_patch
-from . import posegraph, verify
 from .pair import PairInput, compute_features, crop_known, estimate_pair
 from .transforms import image_to_pose, inverse, pose_distance, pose_to_image, se2, xyyaw
-
 
 # a pose graph whose result disagrees with one of its links by more than this (metres,
 # radians) is not used: the chain of most reliable links places the robots instead

@@ -16,7 +16,6 @@ import numpy as np
 from .grid import OCCUPIED, known_bbox
 from .transforms import rigid_from_xy
 
-
 WALL_FIELD_MARGIN = 4   # cells beyond the known box where nearest walls are still looked up
 
 

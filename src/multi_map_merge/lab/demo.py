@@ -150,7 +150,8 @@ def report(truth_path: str, record_dir: str, single_path: Optional[str], png: Op
     print(h)
     print('-' * len(h))
     for name, s in rows:
-        print('%-30s %8.4f %10.3f m %10.3f %9.2f m2' % (name, s.fitness, s.inlier_rmse, s.coverage, s.wrong_occupied_m2))
+        print('%-30s %8.4f %10.3f m %10.3f %9.2f m2'
+              % (name, s.fitness, s.inlier_rmse, s.coverage, s.wrong_occupied_m2))
     print('%-30s %8.4f %10.3f m' % ('paper: multi-robot (4)', *PAPER['multi']))
     print('%-30s %8.4f %10.3f m' % ('paper: single robot', *PAPER['single']))
     est = {}
@@ -172,8 +173,9 @@ def report(truth_path: str, record_dir: str, single_path: Optional[str], png: Op
             ok = False
             print('  %-6s NOT merged: %s' % (r, d.get('message', 'no TF')))
         else:
+            via = d.get('chain', d.get('linked_to', '-'))
             print('  %-6s error %.3f m %.2f deg   inlier ratio %s  agreement %s  via %s' % (
-                r, e[0], e[1], d.get('inlier_ratio', '-'), d.get('agreement', '-'), d.get('chain', d.get('linked_to', '-'))))
+                r, e[0], e[1], d.get('inlier_ratio', '-'), d.get('agreement', '-'), via))
     if png:
         traj = {}
         if T_gt_merged is not None:

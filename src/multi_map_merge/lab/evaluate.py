@@ -31,8 +31,9 @@ pose a few decimetres or degrees off (at 0.10 m alone, ICP stays 3 degrees off o
 map), then a final ``registration_icp`` at the correspondence distance itself runs from that
 pose and from the coarse pose itself (the paper's plain ICP), and the better of the two
 (higher Fitness) is kept: misplaced walls can pull the wide stages aside. The Fitness and
-inlier RMSE reported are Open3D's result of that final run, i.e. the paper's figures at 0.10 m. The pose is kept planar: x, y and yaw are
-read from ICP's 4x4 (ICP of z = 0 points never leaves the plane).
+inlier RMSE reported are Open3D's result of that final run, i.e. the paper's figures at 0.10 m.
+The pose is kept planar: x, y and yaw are read from ICP's 4x4 (ICP of z = 0 points never leaves
+the plane).
 
 Two more figures a user cares about:
 
@@ -135,7 +136,7 @@ def coarse_pose(grid: Grid, truth: Grid) -> Tuple[Optional[np.ndarray], str]:
         st = m.status().get('map')
         why = st.last_attempt.reason if st is not None and st.last_attempt is not None else 'no estimate'
         return None, 'the merger could not place the map on the ground truth (%s)' % why
-    except Exception as e:   # noqa: BLE001  the score must still be computed, from the identity
+    except Exception as e:
         return None, 'the merger failed: %s: %s' % (type(e).__name__, e)
 
 
@@ -370,6 +371,7 @@ def main(argv: Optional[List[str]] = None) -> int:
     import argparse
     import json
     import sys
+
     from ..core.mapio import MapFileError, load_map
 
     def fail(msg: str) -> int:

@@ -53,7 +53,8 @@ def _run_info(run) -> dict:
 
 def main(argv: Optional[List[str]] = None) -> int:
     ap = argparse.ArgumentParser(prog='make_robot_bags', description=__doc__.split('\n\n')[0])
-    ap.add_argument('-o', '--output', required=True, help='bag to write (NAME.bag; also NAME_single.bag, NAME.truth.yaml)')
+    ap.add_argument('-o', '--output', required=True,
+                    help='bag to write (NAME.bag; also NAME_single.bag, NAME.truth.yaml)')
     ap.add_argument('--world', help='ground-truth map_server .yaml (default: the shipped AWS small house)')
     ap.add_argument('--carmen', help='CARMEN log (.log or .log.gz): real scans instead of ray casting')
     ap.add_argument('--robots', type=int, default=4)
@@ -76,7 +77,7 @@ def main(argv: Optional[List[str]] = None) -> int:
     except MapFileError as e:
         print('make_robot_bags: %s' % e, file=sys.stderr)
         return 2
-    from ..ros.replay import write_robot_bag   # rosbag: only when writing
+    from ..ros.replay import write_robot_bag  # rosbag: only when writing
     base = a.output[:-4] if a.output.endswith('.bag') else a.output
     os.makedirs(os.path.dirname(os.path.abspath(base)), exist_ok=True)
     extra = dict(CARMEN_DEFAULTS) if a.carmen else {}
@@ -103,7 +104,8 @@ def main(argv: Optional[List[str]] = None) -> int:
     counts = write_robot_bag(base + '.bag', team)
     truth = {'world': os.path.relpath(world_path, os.path.dirname(os.path.abspath(base))),
              'source': ('carmen:' + os.path.basename(a.carmen)) if a.carmen else 'raycast',
-             'seed': a.seed, 'slam_drift': a.slam_drift, 'reference': team[0].name, 'bag': os.path.basename(base + '.bag'),
+             'seed': a.seed, 'slam_drift': a.slam_drift, 'reference': team[0].name,
+             'bag': os.path.basename(base + '.bag'),
              'robots': {r.name: _run_info(r) for r in team}}
     if lone is not None and not a.no_single:
         write_robot_bag(base + '_single.bag', [lone])

@@ -17,7 +17,6 @@ from ..core.transforms import compose, relative, se2
 from .convert import NumpyGrid, grid_from_msg, grid_to_msg, quaternion_yaw, transform_msg
 from .diagnostics import diagnostics_by_robot
 
-
 BAG_EPOCH = 1_600_000_000.0   # bag time of a simulated run's t = 0 (fixed: bags are reproducible)
 
 
