@@ -64,7 +64,7 @@ def publish(grid):
 
 def worker_peaks_mb():
     """VmHWM of the merger's estimation workers (forkserver children, not ours: read /proc)."""
-    import multi_map_merge.core.merger as mm
+    import multi_map_merge.core.workers as mm
     total = 0.0
     if mm._POOL is not None:
         for pid in list(mm._POOL._processes):
@@ -85,7 +85,7 @@ def _hold(fn, *args):
 def start_pool(cfg):
     """Start the merger's worker pool (and import the package in every worker), as the node
     does once at its first cycle; returns the ms it took."""
-    import multi_map_merge.core.merger as mm
+    import multi_map_merge.core.workers as mm
     t = time.perf_counter()
     pool = mm._pool(cfg.workers)
     if pool is not None:
@@ -182,7 +182,7 @@ def main():
     if sys.argv[1] == '--serve-estimate':
         return serve_estimate(json.load(open(sys.argv[2])))
     spec = json.load(open(sys.argv[1]))
-    import multi_map_merge.core.merger as mm
+    import multi_map_merge.core.workers as mm
     from multi_map_merge.core.config import MergeConfig
     from multi_map_merge.core.features import FeatureExtractor
     from multi_map_merge.core.mapio import load_map
@@ -219,8 +219,8 @@ def main():
     rms = [RobotMap('r%02d' % k, g, k + 1, 0.0).at(g.resolution) for k, g in enumerate(grids)]
     pair = []
     for a, b in pairs:
-        m0._features_of(rms[a])
-        m0._features_of(rms[b])
+        m0._workers.features_of(rms[a])
+        m0._workers.features_of(rms[b])
         for _ in range(reps):
             t = time.perf_counter()
             m0.estimate_grids(rms[a], rms[b])

@@ -44,7 +44,7 @@ def test_map_that_fits_both_halves_stays_unmerged_and_says_why():
     st = m.status()['b']
     assert not st.merged and st.last_attempt_with == 'a'
     assert st.last_attempt.reason.startswith('ambiguous: a second placement'), st.last_attempt.reason
-    ag, apart, turn = st.last_attempt.extra['runner_up']
+    ag, apart, turn = st.last_attempt.runner_up
     assert ag > 0.95 and apart > 5.0 and abs(turn - 180) < 2
     # without the rule the grids pick one of the two halves, here the wrong one
     m = merged({'a': double, 'b': child}, ambiguity_margin=0.0)

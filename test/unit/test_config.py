@@ -28,3 +28,8 @@ def test_readme_documents_every_parameter():
 def test_from_dict_converts_types():
     c = MergeConfig.from_dict({'min_inliers': '12', 'refine': 0, 'robots': 'tb3_0 tb3_1', 'x': 1})
     assert c.min_inliers == 12 and c.refine is False and c.robots == ['tb3_0', 'tb3_1']
+
+
+def test_a_renamed_parameter_is_still_read_by_its_old_name():
+    assert MergeConfig.from_dict({'min_reliability': '0.3'}).min_inlier_ratio == 0.3
+    assert MergeConfig.from_dict({'min_reliability': 0.3, 'min_inlier_ratio': 0.2}).min_inlier_ratio == 0.2

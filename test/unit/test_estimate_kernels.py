@@ -149,7 +149,7 @@ def test_workers_run_blas_on_one_thread():
     code = ('import ctypes, sys\n'
             'sys.path.insert(0, %r)\n'
             'import numpy\n'
-            'from multi_map_merge.core.merger import _worker_init\n'
+            'from multi_map_merge.core.workers import _worker_init\n'
             'try:\n'
             '    lib = ctypes.CDLL("libblas.so.3")\n'
             '    get = lib.openblas_get_num_threads\n'

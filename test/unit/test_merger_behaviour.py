@@ -177,7 +177,7 @@ def test_early_look_alike_is_replaced_despite_its_higher_inlier_ratio(intel, pos
     """A link found on small maps can be a look-alike with a high inlier ratio; inlier ratios
     fall as maps grow, so the right solution found later on the full grids must replace it
     because it verifies clearly better there, whatever its inlier ratio."""
-    from multi_map_merge.core.merger import Edge
+    from multi_map_merge.core.links import Edge
     from multi_map_merge.core.transforms import se2
     ps = strip_pieces(intel, [(0, 0, 0), (3, -2, 2.0), (-4, 1, -2.5)])
     m = MapMerger(MergeConfig(reference_robot='a', pose_graph=pose_graph))
@@ -199,18 +199,18 @@ def test_early_look_alike_is_replaced_despite_its_higher_inlier_ratio(intel, pos
         m.update_map(n, Grid(data, g.resolution, g.origin))
     m.estimate()
     e = m._edges[('a', 'b')]
-    assert e.reliability < 0.9          # the replacement's inlier ratio is lower than the kept one's
+    assert e.inlier_ratio < 0.9          # the replacement's inlier ratio is lower than the kept one's
     d, a = pose_error(m.placements()['b'].T, truth(ps[0][1], ps[1][1]))
     assert d < 0.1 and a < 1.0
 
 
 def test_a_clearly_better_link_is_one_that_halves_the_disagreement_near_one():
-    from multi_map_merge.core.merger import _clearly_better
-    assert _clearly_better(0.995, 0.973)       # isr_small: the look-alike 1.1 m along a corridor
-    assert _clearly_better(0.95, 0.91)         # 0.03 more
-    assert not _clearly_better(0.994, 0.992)   # the same link's noise
-    assert not _clearly_better(0.96, 0.95)     # less than half the disagreement, under 0.03
-    assert not _clearly_better(0.999, 0.995)   # halves it, but gains under 0.01
+    from multi_map_merge.core.links import clearly_better
+    assert clearly_better(0.995, 0.973)       # isr_small: the look-alike 1.1 m along a corridor
+    assert clearly_better(0.95, 0.91)         # 0.03 more
+    assert not clearly_better(0.994, 0.992)   # the same link's noise
+    assert not clearly_better(0.96, 0.95)     # less than half the disagreement, under 0.03
+    assert not clearly_better(0.999, 0.995)   # halves it, but gains under 0.01
 
 
 def test_a_pair_estimated_on_the_known_crops_is_the_pair_of_the_whole_grids(intel):

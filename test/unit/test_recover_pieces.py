@@ -38,11 +38,11 @@ def test_core_api_recovers_every_pose(world, n, seed):
         assert np.linalg.det(pl['p%d' % i].T[:2, :2]) == pytest.approx(1.0)
 
 
-MERGED_KEYS = {'merged', 'x', 'y', 'yaw', 'reliability', 'inliers', 'agreement', 'via'}
+MERGED_KEYS = {'merged', 'x', 'y', 'yaw', 'inlier_ratio', 'inliers', 'agreement', 'via'}
 
 
 def check_report(report, ps, stems):
-    """T.yaml's exact shape (README: reference, maps: {stem: {merged, x, y, yaw, reliability,
+    """T.yaml's exact shape (README: reference, maps: {stem: {merged, x, y, yaw, inlier_ratio,
     inliers, agreement, via}}) and every pose against the truth."""
     assert set(report) == {'reference', 'maps'} and report['reference'] == stems[0]
     assert set(report['maps']) == set(stems[1:])
@@ -50,9 +50,9 @@ def check_report(report, ps, stems):
         r = report['maps'][s]
         assert set(r) == MERGED_KEYS, sorted(r)
         assert r['merged'] is True and r['via'] in stems and r['via'] != s
-        assert all(isinstance(r[k], float) for k in ('x', 'y', 'yaw', 'reliability', 'agreement'))
+        assert all(isinstance(r[k], float) for k in ('x', 'y', 'yaw', 'inlier_ratio', 'agreement'))
         assert isinstance(r['inliers'], int)
-        assert 0 < r['reliability'] <= 1 and r['inliers'] >= 10 and 0.8 <= r['agreement'] <= 1
+        assert 0 < r['inlier_ratio'] <= 1 and r['inliers'] >= 10 and 0.8 <= r['agreement'] <= 1
         d, a = pose_error(se2(r['x'], r['y'], r['yaw']), truth(ps[0][1], ps[i][1]))
         assert d <= 0.10 and a <= 1.0, '%s off by %.3f m %.2f deg' % (s, d, a)
 

@@ -3,7 +3,7 @@ defaults for ROS users (a unit test keeps the two equal)."""
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field, fields
-from typing import Any, Dict, List
+from typing import Any, ClassVar, Dict, List
 
 
 @dataclass
@@ -35,7 +35,7 @@ class MergeConfig:
     ransac_hypotheses: int = 8               # distinct transforms verified per pair
     min_matches: int = 10
     min_inliers: int = 10
-    min_reliability: float = 0.0             # inlier ratio below this is never used
+    min_inlier_ratio: float = 0.0            # inlier ratio below this is never used
     few_inliers: int = 21                    # a link with fewer RANSAC inliers than this ...
     few_inliers_min_agreement: float = 0.96  # ... must verify at least this well; 0 = off
     replace_margin: float = 0.02             # a new transform must beat the kept one by this
@@ -56,9 +56,17 @@ class MergeConfig:
     # --- persistence (node only) ---
     transforms_file: str = ''                # '' = do not persist
 
+    # parameters renamed since they were published: old name -> new name (the old one is still read)
+    RENAMED: ClassVar[Dict[str, str]] = {'min_reliability': 'min_inlier_ratio'}
+
     @classmethod
     def from_dict(cls, d: Dict[str, Any]) -> 'MergeConfig':
-        """Build from a mapping, ignoring unknown keys; values are converted to each field's type."""
+        """Build from a mapping, ignoring unknown keys; values are converted to each field's type.
+        A parameter's old name (:attr:`RENAMED`) is read when its new name is absent."""
+        d = dict(d)
+        for old, new in cls.RENAMED.items():
+            if old in d and d.get(new) is None:
+                d[new] = d[old]
         kw = {}
         for f in fields(cls):
             if f.name in d and d[f.name] is not None:

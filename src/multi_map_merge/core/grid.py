@@ -82,16 +82,23 @@ class Grid:
         return lv
 
 
-    def known_box(self) -> Optional[Tuple[int, int, int, int]]:
-        """:func:`known_bbox` of the default levels, grown by one cell (cached: grids are not
-        modified once made)."""
+    def known_box(self, free_thresh: float = DEFAULT_FREE_THRESH,
+                  occ_thresh: float = DEFAULT_OCC_THRESH) -> Optional[Tuple[int, int, int, int]]:
+        """:func:`known_bbox` of the levels, grown by one cell (cached for the default
+        thresholds: grids are not modified once made)."""
+        if free_thresh != DEFAULT_FREE_THRESH or occ_thresh != DEFAULT_OCC_THRESH:
+            return known_bbox(self.levels(free_thresh, occ_thresh), 1)
         if self._box is None:
             self._box = (known_bbox(self.levels(), 1),)
         return self._box[0]
 
-    def known_values(self) -> Optional[Tuple[Tuple[int, int, int, int], np.ndarray]]:
-        """(:meth:`known_box`, :func:`known_values` in it) of the default levels; None when
-        nothing is known (cached)."""
+    def known_values(self, free_thresh: float = DEFAULT_FREE_THRESH,
+                     occ_thresh: float = DEFAULT_OCC_THRESH) -> Optional[Tuple[Tuple[int, int, int, int], np.ndarray]]:
+        """(:meth:`known_box`, :func:`known_values` in it) of the levels; None when nothing is
+        known (cached for the default thresholds)."""
+        if free_thresh != DEFAULT_FREE_THRESH or occ_thresh != DEFAULT_OCC_THRESH:
+            box = self.known_box(free_thresh, occ_thresh)
+            return None if box is None else (box, known_values(self.levels(free_thresh, occ_thresh), box))
         if self._known is None:
             box = self.known_box()
             self._known = (None if box is None else (box, known_values(self.levels(), box)),)

@@ -17,42 +17,13 @@ Verification on the grids is :mod:`verify`'s.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from typing import List, Optional, Tuple
+from typing import List, Tuple
 
 import cv2
 import numpy as np
 
 from .features import Features
 from .transforms import apply, rigid_fit_angle, rigid_fit_translation, turn_between, wrap_angle
-
-
-@dataclass
-class PairEstimate:
-    """Estimate of the transform between two grids (cells of ``src`` -> cells of ``dst``).
-
-    Attributes:
-        A: 3x3 rigid matrix, cell coordinates of the source grid -> of the destination grid.
-        matches: number of matches that passed the ratio test (N_inlier + N_outlier).
-        inliers: RANSAC inliers N_inlier.
-        reliability: inlier ratio, 0..1 (the paper's score).
-        agreement: verification score 0..1: of the occupied cells that land on known cells of
-            the other grid, the fraction that meet an occupied cell there (within tolerance)
-            rather than a free one.
-        overlap: cells known in both grids under ``A``.
-        accepted: passed every gate (min inliers, min overlap, min agreement).
-        reason: why it was rejected, '' when accepted.
-    """
-
-    A: Optional[np.ndarray]
-    matches: int = 0
-    inliers: int = 0
-    reliability: float = 0.0
-    agreement: float = 0.0
-    overlap: int = 0
-    accepted: bool = False
-    reason: str = ''
-    extra: dict = field(default_factory=dict)
 
 
 def match(f_src: Features, f_dst: Features, candidates: int = 2,

@@ -38,7 +38,7 @@ def transforms_report(merger: MapMerger, reference: str, names: List[str]) -> Di
             continue
         x, y, yaw = xyyaw(pl.T)
         maps[n] = {'merged': True, 'x': round(x, 6), 'y': round(y, 6), 'yaw': round(yaw, 6),
-                   'reliability': round(float(pl.reliability), 4), 'inliers': int(pl.inliers),
+                   'inlier_ratio': round(float(pl.inlier_ratio), 4), 'inliers': int(pl.inliers),
                    'agreement': round(float(pl.agreement), 4), 'via': pl.via}
     return {'reference': reference, 'maps': maps}
 
@@ -94,7 +94,7 @@ def main(argv: Optional[List[str]] = None) -> int:
         if r['merged']:
             print('  %-30s merged   x=%8.3f m  y=%8.3f m  yaw=%8.2f deg  inlier ratio %.3f  '
                   'inliers %d  agreement %.3f  via %s' % (n, r['x'], r['y'], math.degrees(r['yaw']),
-                                                          r['reliability'], r['inliers'],
+                                                          r['inlier_ratio'], r['inliers'],
                                                           r['agreement'], r['via']))
         else:
             print('  %-30s NOT merged: %s' % (n, r['reason']))

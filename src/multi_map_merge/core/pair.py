@@ -13,13 +13,45 @@ from typing import Dict, Optional, Tuple
 import cv2
 import numpy as np
 
-from . import matching as est
-from . import verify
+from . import matching, verify
 from .config import MergeConfig
 from .features import FeatureExtractor, Features, coarsening
 from .grid import known_bbox
 from .refine import WALL_FIELD_MARGIN, WallField, occupied_points, refine
 from .transforms import apply, image_to_pose, inverse, pose_distance, se2, turn_between
+
+
+@dataclass
+class PairEstimate:
+    """One pair's result: the transform between two grids (cells of the child -> cells of the
+    parent) and how well it is supported.
+
+    Attributes:
+        A: 3x3 rigid matrix, cell coordinates of the child's grid -> of the parent's grid.
+        matches: number of matches that passed the ratio test (N_inlier + N_outlier).
+        inliers: RANSAC inliers N_inlier.
+        inlier_ratio: the paper's reliability, 0..1: inliers among the matches.
+        agreement: verification score 0..1: of the occupied cells that land on known cells of
+            the other grid, the fraction that meet an occupied cell there (within tolerance)
+            rather than a free one.
+        overlap: cells known in both grids under ``A``.
+        accepted: passed every gate (min inliers, min overlap, min agreement).
+        reason: why it was rejected, '' when accepted.
+        runner_up: the best clearly different placement that also passed every gate, as
+            (agreement, metres, degrees from this one); None when there was none.
+        stamp: seconds (time.time()) when the merger received it; 0 until then.
+    """
+
+    A: Optional[np.ndarray]
+    matches: int = 0
+    inliers: int = 0
+    inlier_ratio: float = 0.0
+    agreement: float = 0.0
+    overlap: int = 0
+    accepted: bool = False
+    reason: str = ''
+    runner_up: Optional[Tuple[float, float, float]] = None
+    stamp: float = 0.0
 
 
 @dataclass
@@ -171,7 +203,7 @@ def refined(config: MergeConfig, pa: PairInput, ch: PairInput, A: np.ndarray) ->
 AMBIGUITY_APART = (0.5, math.radians(5.0))
 
 
-def estimate_pair(config: MergeConfig, pa: PairInput, ch: PairInput, seed: int = 0) -> est.PairEstimate:
+def estimate_pair(config: MergeConfig, pa: PairInput, ch: PairInput, seed: int = 0) -> PairEstimate:
     """Cells of ``ch``'s grid -> cells of ``pa``'s grid: (2) match, (3) rigid RANSAC + inlier
     ratio, (4) verification on the grids and ICP refinement. The best-agreeing accepted
     hypothesis is returned, or the best rejected one with its reason (also when a clearly
@@ -182,20 +214,25 @@ def estimate_pair(config: MergeConfig, pa: PairInput, ch: PairInput, seed: int =
     return r
 
 
-def _estimate_crops(config: MergeConfig, pa: PairInput, ch: PairInput, seed: int) -> est.PairEstimate:
+def _estimate_crops(config: MergeConfig, pa: PairInput, ch: PairInput, seed: int) -> PairEstimate:
     """:func:`estimate_pair` between the crops' cells."""
     c = config
     fa, fc = _at_one_scale(c, pa, ch)
-    src, dst, unique = est.match(fc, fa, c.match_candidates, c.match_ratio)
-    r = est.PairEstimate(None, matches=int(unique.sum()))
+    src, dst, unique = matching.match(fc, fa, c.match_candidates, c.match_ratio)
+    r = PairEstimate(None, matches=int(unique.sum()))
     if src.shape[0] < c.min_matches:
         r.reason = 'too few matches (%d < %d)' % (src.shape[0], c.min_matches)
         return r
-    hyps = est.ransac_rigid(src, dst, c.ransac_threshold, c.ransac_iterations, seed,
+    hyps = matching.ransac_rigid(src, dst, c.ransac_threshold, c.ransac_iterations, seed,
                             c.ransac_hypotheses, min_count=max(2, int(0.7 * c.min_inliers)))
     lv_a, lv_b = pa.levels, ch.levels
     boxes = (_known(pa)[0], _known(ch)[0])
     walls = _walls(pa, c.agreement_tolerance)
+
+    def verified(A: np.ndarray) -> Tuple[float, int]:
+        # (agreement, overlap) on the crops, the parent's walls and both known boxes derived once
+        return verify.agreement(lv_a, lv_b, A, c.agreement_tolerance, boxes, walls)
+
     # Score every hypothesis on the grids first (cheap), then polish only the promising ones
     # by ICP (the costly step) and score them again.
     scored = []
@@ -203,15 +240,15 @@ def _estimate_crops(config: MergeConfig, pa: PairInput, ch: PairInput, seed: int
         inl = int(mask.sum())
         if inl < c.min_inliers:
             continue
-        ag, _ = verify.agreement(lv_a, lv_b, A, c.agreement_tolerance, boxes, walls)
+        ag, _ = verified(A)
         scored.append((ag, inl, A))
     scored.sort(key=lambda t: (t[0], t[1]), reverse=True)
-    best: Optional[est.PairEstimate] = None
+    best: Optional[PairEstimate] = None
     th2 = c.ransac_threshold ** 2
     tried = []
     centre = _known(ch)[1]
     for rank, (ag, inl, A) in enumerate(scored):
-        h = est.PairEstimate(A, matches=r.matches, inliers=inl)
+        h = PairEstimate(A, matches=r.matches, inliers=inl)
         # the runner-up is polished only when it scores nearly as well as the best (it may be
         # the right one); so is any clearly different placement that might make the best one
         # ambiguous
@@ -220,9 +257,9 @@ def _estimate_crops(config: MergeConfig, pa: PairInput, ch: PairInput, seed: int
                      and not _same_place(A, scored[0][2], centre, pa.resolution)))
         if c.refine and close and ag >= c.min_agreement - 0.2:
             h.A = refined(c, pa, ch, A)
-        good_inl = int(est.inlier_mask(h.A, src[unique], dst[unique], th2).sum()) if r.matches else 0
-        h.reliability = good_inl / float(max(1, r.matches))
-        h.agreement, h.overlap = verify.agreement(lv_a, lv_b, h.A, c.agreement_tolerance, boxes, walls)
+        good_inl = int(matching.inlier_mask(h.A, src[unique], dst[unique], th2).sum()) if r.matches else 0
+        h.inlier_ratio = good_inl / float(max(1, r.matches))
+        h.agreement, h.overlap = verified(h.A)
         contradiction = contradicts_prior(c, pa, ch, h.A)
         if contradiction:
             h.reason = contradiction
@@ -230,8 +267,8 @@ def _estimate_crops(config: MergeConfig, pa: PairInput, ch: PairInput, seed: int
             h.reason = 'overlap %d cells < %d' % (h.overlap, c.min_overlap_cells)
         elif h.agreement < c.min_agreement:
             h.reason = 'grids disagree: agreement %.2f < %.2f' % (h.agreement, c.min_agreement)
-        elif h.reliability < c.min_reliability:
-            h.reason = 'inlier ratio %.3f < %.3f' % (h.reliability, c.min_reliability)
+        elif h.inlier_ratio < c.min_inlier_ratio:
+            h.reason = 'inlier ratio %.3f < %.3f' % (h.inlier_ratio, c.min_inlier_ratio)
         elif h.inliers < c.few_inliers and h.agreement < c.few_inliers_min_agreement:
             # A look-alike place yields few agreeing matches and walls that agree only in the
             # main. Measured on windows of 11 buildings (2720 right links): 9 of the 10 links that
@@ -281,12 +318,12 @@ def _same_place(A: np.ndarray, B: np.ndarray, centre: np.ndarray, resolution: fl
     return d <= AMBIGUITY_APART[0] and da <= AMBIGUITY_APART[1]
 
 
-def _check_ambiguity(config: MergeConfig, pa: PairInput, best: est.PairEstimate, tried,
+def _check_ambiguity(config: MergeConfig, pa: PairInput, best: PairEstimate, tried,
                      centre: np.ndarray) -> None:
     """Reject ``best`` when another, clearly different placement of the child also passes every
     gate and agrees nearly as well (within ``ambiguity_margin``): the child looks alike in two
     places of the parent (a building of identical halves, seen whole by the parent), and the
-    grids cannot say which. The runner-up is kept in ``best.extra['runner_up']`` (agreement,
+    grids cannot say which. The runner-up is kept in ``best.runner_up`` (agreement,
     metres and degrees apart)."""
     rival = None
     for h in tried:
@@ -297,7 +334,7 @@ def _check_ambiguity(config: MergeConfig, pa: PairInput, best: est.PairEstimate,
             rival = (h.agreement, d, math.degrees(da))
     if rival is None:
         return
-    best.extra['runner_up'] = rival
+    best.runner_up = rival
     if config.ambiguity_margin > 0 and rival[0] >= best.agreement - config.ambiguity_margin:
         best.accepted = False
         best.reason = ('ambiguous: a second placement %.2f m, %.0f deg away also verifies (agreement '

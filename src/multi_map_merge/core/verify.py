@@ -13,8 +13,9 @@ from typing import Optional, Tuple
 import cv2
 import numpy as np
 
-from .grid import FREE, OCCUPIED, known_bbox
-from .transforms import apply, se2
+from .config import MergeConfig
+from .grid import FREE, OCCUPIED, Grid, known_bbox
+from .transforms import apply, pose_to_image, se2
 
 
 @dataclass
@@ -88,3 +89,11 @@ def agreement(lv_dst: np.ndarray, lv_src: np.ndarray, A: np.ndarray,
     if agree + conflict == 0:
         return 0.0, overlap
     return agree / float(agree + conflict), overlap
+
+
+def pose_on_grids(config: MergeConfig, parent: Grid, child: Grid, T: np.ndarray) -> Tuple[float, int]:
+    """:func:`agreement` of a link ``T`` (metres of ``child``'s frame -> ``parent``'s frame) on
+    the two grids, classified at the configured thresholds: (agreement 0..1, overlap cells)."""
+    A = pose_to_image(T, parent.resolution, parent.origin, child.resolution, child.origin)
+    return agreement(parent.levels(config.free_thresh, config.occupied_thresh),
+                     child.levels(config.free_thresh, config.occupied_thresh), A, config.agreement_tolerance)

@@ -132,7 +132,7 @@ def coarse_pose(grid: Grid, truth: Grid) -> Tuple[Optional[np.ndarray], str]:
         pl = m.placements().get('map')
         if pl is not None:
             return pl.T, ('inlier ratio %.3f, agreement %.3f, %d inliers'
-                          % (pl.reliability, pl.agreement, pl.inliers))
+                          % (pl.inlier_ratio, pl.agreement, pl.inliers))
         st = m.status().get('map')
         why = st.last_attempt.reason if st is not None and st.last_attempt is not None else 'no estimate'
         return None, 'the merger could not place the map on the ground truth (%s)' % why

@@ -29,12 +29,12 @@ def diagnostics_msg(status: Dict[str, RobotStatus], gone: Dict[str, bool], est_s
             pl = st.placement
             x, y, yaw = xyyaw(pl.T)
             kv += [('via', pl.via or '-'), ('chain', ' -> '.join(pl.path)),
-                   ('inlier_ratio', '%.3f' % pl.reliability), ('agreement', '%.3f' % pl.agreement),
+                   ('inlier_ratio', '%.3f' % pl.inlier_ratio), ('agreement', '%.3f' % pl.agreement),
                    ('inliers', str(pl.inliers)), ('x', '%.3f' % x), ('y', '%.3f' % y),
                    ('yaw', '%.4f' % yaw), ('age_s', '%.1f' % (now - pl.stamp))]
         if st.last_attempt is not None:
             a = st.last_attempt
-            kv += [('last_pair', st.last_attempt_with), ('last_inlier_ratio', '%.3f' % a.reliability),
+            kv += [('last_pair', st.last_attempt_with), ('last_inlier_ratio', '%.3f' % a.inlier_ratio),
                    ('last_agreement', '%.3f' % a.agreement), ('last_inliers', str(a.inliers)),
                    ('last_result', 'accepted' if a.accepted else a.reason)]
         if st.error:

@@ -28,8 +28,11 @@ def load_config() -> MergeConfig:
     """Every parameter of the node, read once from the private namespace; the defaults are
     MergeConfig's, which equal config/map_merge.yaml."""
     default = MergeConfig()
-    return MergeConfig.from_dict({f.name: rospy.get_param('~' + f.name, getattr(default, f.name))
-                                  for f in fields(MergeConfig)})
+    params = {f.name: rospy.get_param('~' + f.name, getattr(default, f.name)) for f in fields(MergeConfig)}
+    for old, new in MergeConfig.RENAMED.items():
+        if rospy.has_param('~' + old) and not rospy.has_param('~' + new):
+            params[new] = rospy.get_param('~' + old)
+    return MergeConfig.from_dict(params)
 
 
 class MergeNode:

@@ -1,0 +1,82 @@
+"""Verified links between robots' map frames, and when a new estimate replaces a kept link.
+
+The paper keeps the most reliable transform (the highest inlier ratio). Two refinements of
+that rule, because inlier ratios fall as maps grow (more features, more outliers):
+
+* the kept link, found again on grown maps (within SAME_LINK), takes the new pose when it was
+  found on more overlap: the same solution, refined; otherwise early links on small maps stay
+  a degree off for ever;
+* a different solution replaces the kept link only if the grids, now larger, clearly prefer it
+  (:func:`clearly_better`): on a corridor the first link found on small maps can be a
+  look-alike a metre along it, whose early inlier ratio the right link never beats.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable, Optional, Tuple
+
+import numpy as np
+
+from .config import MergeConfig
+from .pair import PairEstimate
+from .transforms import inverse, pose_distance
+
+# a link re-estimated within this of the kept one (metres, radians) is the same link refined
+SAME_LINK = (0.3, math.radians(3.0))
+# a different solution replaces a kept link when it verifies this much better on the grids,
+# or when it at least halves the kept link's disagreement (and gains SWITCH_MIN): near 1.0 a
+# fixed margin cannot be met even by a clearly better link (0.995 against 0.973)
+SWITCH_AGREEMENT = 0.03
+SWITCH_MIN = 0.01
+
+
+@dataclass
+class Edge:
+    """A verified transform between two robots' map frames: ``T`` maps metres in ``child``'s
+    frame to metres in ``parent``'s frame."""
+
+    parent: str
+    child: str
+    T: np.ndarray
+    inlier_ratio: float
+    agreement: float
+    inliers: int
+    matches: int
+    stamp: float
+    overlap: int = 0      # cells known in both grids when it was estimated
+
+    def towards(self, parent: str) -> np.ndarray:
+        """Pose of the other robot's frame in ``parent``'s frame."""
+        return self.T if parent == self.parent else inverse(self.T)
+
+
+def replacement(config: MergeConfig, old: Optional[Edge], T: np.ndarray, r: PairEstimate,
+                agreement_now: Callable[[], float]) -> Optional[Tuple[float, int]]:
+    """Whether an accepted estimate ``r`` (pose ``T`` in metres) replaces the kept link ``old``:
+    None to keep ``old``, else the (inlier ratio, inliers) the new link is kept with.
+    ``agreement_now()``: the kept link's verification score on the pair's current grids (its
+    recorded one was measured on the grids of its time); called only when needed."""
+    if old is None or r.inlier_ratio > old.inlier_ratio + config.replace_margin:
+        return r.inlier_ratio, r.inliers      # the paper's rule: more reliable
+    if same_link(T, old.T):
+        if r.overlap <= old.overlap:
+            return None
+        # the kept link, refined on more overlap: its pose (a small correction, not a jump),
+        # the best inlier ratio seen
+        return old.inlier_ratio, max(old.inliers, r.inliers)
+    if r.overlap >= 0.9 * old.overlap and clearly_better(r.agreement, agreement_now()):
+        return r.inlier_ratio, r.inliers      # a different solution the grids clearly prefer
+    return None
+
+
+def clearly_better(new: float, kept: float) -> bool:
+    """A new link's agreement beats the kept link's (both on the current grids) by enough to
+    switch: SWITCH_AGREEMENT more, or half the disagreement and SWITCH_MIN more."""
+    return new >= kept + SWITCH_AGREEMENT or (new >= kept + SWITCH_MIN and 1.0 - new <= 0.5 * (1.0 - kept))
+
+
+def same_link(T1: np.ndarray, T2: np.ndarray) -> bool:
+    """Two estimates of one link that differ by a refinement, not by a different solution."""
+    d, a = pose_distance(T1, T2)
+    return d <= SAME_LINK[0] and a <= SAME_LINK[1]

@@ -1,0 +1,148 @@
+"""Where every robot's map frame sits in the merged frame, from the verified links.
+
+Four steps, in this order (:meth:`merger.MapMerger._place` runs them):
+
+1. :func:`widest_paths`: each robot chained to the reference through the path whose weakest
+   link has the highest inlier ratio (a robot that misses the reference chains through another).
+2. :func:`graph_poses`: where the links form cycles, an SE(2) pose graph places every robot by
+   all verified links at once (a chain adds up its links' errors, the graph averages them),
+   used only if every link agrees with its solution within GRAPH_GATE.
+3. :func:`add_priors`: robots with no chain, placed at their configured initial pose when
+   those are trusted.
+4. :func:`hysteresis`: per robot the kept placement stays unless the new one is more reliable
+   by ``replace_margin``, its chain broke, or the pose graph moved everyone.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from typing import Dict, Iterable, List, Optional, Tuple
+
+import numpy as np
+
+from . import posegraph
+from .config import MergeConfig
+from .links import SAME_LINK, Edge
+from .transforms import inverse, pose_distance, se2, xyyaw
+
+# a pose graph whose result disagrees with one of its links by more than this (metres,
+# radians) is not used: the chain of most reliable links places the robots instead
+GRAPH_GATE = (0.3, math.radians(3.0))
+# the via of a robot placed at its configured initial pose
+PRIOR = 'initial_pose'
+
+Links = Dict[Tuple[str, str], Edge]
+
+
+@dataclass
+class Placement:
+    """Where a robot's map frame sits in the merged frame, and how well we know it."""
+
+    T: np.ndarray                 # 3x3 pose of the robot's map frame in the merged frame
+    inlier_ratio: float           # weakest inlier ratio along the chain (1.0 for the reference)
+    agreement: float              # weakest verification score along the chain
+    inliers: int                  # fewest inliers along the chain
+    via: str                      # the robot it is linked through ('' for the reference)
+    path: Tuple[str, ...]         # reference ... robot
+    stamp: float                  # seconds when this placement was adopted
+
+
+def widest_paths(edges: Links, names: Iterable[str], ref: str) -> Dict[str, Placement]:
+    """Every robot of ``names`` reachable from ``ref``, placed through the chain whose weakest
+    link has the highest inlier ratio (widest path, maximin)."""
+    names = set(names)
+    best: Dict[str, Placement] = {ref: Placement(np.eye(3), 1.0, 1.0, 0, '', (ref,), time.time())}
+    frontier = [ref]
+    # N is small, so a simple loop does
+    while frontier:
+        frontier.sort(key=lambda n: best[n].inlier_ratio)
+        u = frontier.pop()
+        for (a, b), e in edges.items():
+            if u not in (a, b):
+                continue
+            v = b if u == a else a
+            if v not in names:
+                continue
+            ratio = min(best[u].inlier_ratio, e.inlier_ratio)
+            if v in best and best[v].inlier_ratio >= ratio:
+                continue
+            T = best[u].T @ e.towards(u)
+            best[v] = Placement(T, ratio, min(best[u].agreement, e.agreement),
+                                min(best[u].inliers or e.inliers, e.inliers), u,
+                                best[u].path + (v,), time.time())
+            if v not in frontier:
+                frontier.append(v)
+    return best
+
+
+def graph_links(edges: Links, placed: Iterable[str]) -> Tuple[list, tuple]:
+    """(the pose graph's links among the ``placed`` robots: (parent, child, T, weight), the key
+    that identifies them: a graph of the same key gives the same placements)."""
+    placed = set(placed)
+    links = [(e.parent, e.child, e.T, float(min(e.inliers, 50))) for e in edges.values()
+             if e.parent in placed and e.child in placed]
+    key = tuple(sorted((a, b, edges[(a, b)].stamp) for a, b, _, _ in links))
+    return links, key
+
+
+def graph_poses(best: Dict[str, Placement], links: list, ref: str) -> Optional[Dict[str, np.ndarray]]:
+    """Every placed robot's pose by all ``links`` at once (the reference held fixed), or None
+    when there is no cycle or a link disagrees with the solution by more than GRAPH_GATE."""
+    if len(links) < len(best):
+        return None
+    opt = posegraph.optimise({n: p.T for n, p in best.items()}, links, ref)
+    worst = posegraph.worst_residual(opt, links)
+    if worst is not None and worst[0] <= GRAPH_GATE[0] and worst[1] <= GRAPH_GATE[1]:
+        return opt
+    return None
+
+
+def add_priors(config: MergeConfig, best: Dict[str, Placement], names: Iterable[str], ref: str) -> None:
+    """Robots of ``names`` with no placement, placed at their initial pose relative to the
+    reference's, when ``trust_initial_poses`` is set."""
+    priors = config.initial_poses
+    if config.trust_initial_poses and ref in priors:
+        for n in names:
+            if n not in best and n in priors:
+                T = inverse(se2(*priors[ref])) @ se2(*priors[n])
+                best[n] = Placement(T, 0.0, 0.0, 0, PRIOR, (ref, n), time.time())
+
+
+def hysteresis(config: MergeConfig, best: Dict[str, Placement], old: Dict[str, Placement],
+               edges: Links, ref: str, regraphed: bool) -> Tuple[Dict[str, Placement], List[str]]:
+    """(the placements to adopt, events): per robot the kept placement stays while its chain
+    holds, unless the new one is more reliable by ``replace_margin`` or the pose graph was
+    solved anew (it moves every robot it places)."""
+    new: Dict[str, Placement] = {}
+    events: List[str] = []
+    for n, pl in best.items():
+        prev = old.get(n)
+        still_linked = prev is not None and (prev.via == PRIOR or chain_holds(prev, edges))
+        if (prev is not None and still_linked and pl.inlier_ratio <= prev.inlier_ratio + config.replace_margin
+                and not (regraphed and pl.via != PRIOR)):
+            new[n] = prev
+            continue
+        new[n] = pl
+        if n == ref:
+            continue
+        x, y, yaw = xyyaw(pl.T)
+        what = 'merged' if prev is None else 'transform improved'
+        events.append('%s %s via %s: x=%.3f m y=%.3f m yaw=%.2f deg, inlier ratio %.3f, '
+                      'agreement %.3f, inliers %d' % (n, what, pl.via, x, y, math.degrees(yaw),
+                                                      pl.inlier_ratio, pl.agreement, pl.inliers))
+    return new, events
+
+
+def chain_holds(pl: Placement, edges: Links) -> bool:
+    """The links a placement was made of are all still kept and still say where it is: a link
+    replaced by a different solution (a look-alike corrected) moves the robot. The tolerance
+    allows for the pose graph, which moves a placement off its chain by up to GRAPH_GATE."""
+    T = np.eye(3)
+    for p, q in zip(pl.path, pl.path[1:]):
+        e = edges.get((p, q)) or edges.get((q, p))
+        if e is None:
+            return False
+        T = T @ e.towards(p)
+    d, a = pose_distance(T, pl.T)
+    return d <= GRAPH_GATE[0] + SAME_LINK[0] and a <= GRAPH_GATE[1] + SAME_LINK[1]

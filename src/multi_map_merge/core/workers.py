@@ -1,0 +1,166 @@
+"""Steps (1)-(4) of many pairs in worker processes, and what a merger derives once per map.
+
+Processes, not threads: estimation is partly pure Python, and in threads it would hold the GIL
+that the node's /map and TF timers need. One pool serves every merger of a process.
+"""
+from __future__ import annotations
+
+import itertools
+import os
+import zlib
+from typing import TYPE_CHECKING, Dict, List, Tuple
+
+import numpy as np
+
+from .config import MergeConfig
+from .features import Features
+from .pair import PairEstimate, PairInput, compute_features, crop_known, estimate_pair
+
+if TYPE_CHECKING:   # (the merger imports this module)
+    from .merger import RobotMap
+
+_MERGERS = itertools.count()
+_POOL = None
+_POOL_SIZE = 0
+
+
+class PairWorkers:
+    """One merger's side of the pool: the crop (known part) and the features of each of its
+    maps, derived once per map version (:attr:`RobotMap.key`), and the pairs' estimates."""
+
+    def __init__(self, config: MergeConfig):
+        self.config = config
+        self.uid = '%d-%d' % (os.getpid(), next(_MERGERS))   # names its maps in worker caches
+        self._features: Dict[str, Tuple[tuple, Features]] = {}   # in the crops' cells
+        self._crops: Dict[str, Tuple[tuple, np.ndarray, Tuple[int, int]]] = {}
+
+    def forget(self, name: str) -> None:
+        """Drop what was derived from a robot's maps."""
+        self._features.pop(name, None)
+        self._crops.pop(name, None)
+
+    def crop(self, m: RobotMap) -> Tuple[np.ndarray, Tuple[int, int]]:
+        """The known part of a map's levels and its (col, row) offset, once per map version:
+        what features are computed on and what goes to the worker processes."""
+        cached = self._crops.get(m.name)
+        if cached is None or cached[0] != m.key:
+            c = self.config
+            lv = m.grid.levels(c.free_thresh, c.occupied_thresh)
+            cached = self._crops[m.name] = (m.key,) + crop_known(
+                lv, m.grid.known_box(c.free_thresh, c.occupied_thresh))
+        return cached[1], cached[2]
+
+    def features_of(self, m: RobotMap) -> Features:
+        """(1) features of a map (in its crop's cells), computed once per map version."""
+        cached = self._features.get(m.name)
+        if cached is None or cached[0] != m.key:
+            self._features[m.name] = (m.key, compute_features(self.config, self.crop(m)[0]))
+        return self._features[m.name][1]
+
+    def _stale(self, maps: Dict[str, RobotMap]) -> List[RobotMap]:
+        """The maps whose features are not those of their current version."""
+        return [m for m in maps.values() if self._features.get(m.name, (None,))[0] != m.key]
+
+    def _features_all(self, maps: Dict[str, RobotMap]) -> None:
+        """Features of every map that changed, in the worker processes."""
+        todo = self._stale(maps)
+        if not todo:
+            return
+        c = self.config
+        levels = [self.crop(m)[0] for m in todo]
+        for m, f in zip(todo, self.map(compute_features, [c] * len(todo), levels)):
+            self._features[m.name] = (m.key, f)
+
+    def input(self, m: RobotMap) -> PairInput:
+        """A map as one side of a pair (its crop and features)."""
+        levels, offset = self.crop(m)
+        return PairInput(m.name, m.version, levels, m.grid.resolution, m.grid.origin,
+                         self.features_of(m), self.uid, offset)
+
+    def estimate_pairs(self, maps: Dict[str, RobotMap], todo: List[Tuple[str, str]]) -> List[PairEstimate]:
+        """Features of the maps that changed, then the pairs' estimates, in ``todo``'s order.
+
+        With a worker pool the two stages overlap: waiting for every map's features before
+        the first pair would leave a worker idle while the slowest map is described."""
+        c = self.config
+        seeds = {ab: zlib.crc32(('%s|%s' % ab).encode()) for ab in todo}
+        stale = self._stale(maps)
+        # the biggest maps first: the last task to start should be a short one
+        stale.sort(key=lambda m: -m.grid.width * m.grid.height)
+        pool = _pool(c.workers)
+        if pool is None or not stale:
+            self._features_all(maps)
+            inputs = {n: self.input(maps[n]) for n in {x for ab in todo for x in ab}}
+            return self.map(estimate_pair, [c] * len(todo), [inputs[a] for a, _ in todo],
+                            [inputs[b] for _, b in todo], [seeds[ab] for ab in todo])
+        from concurrent.futures import as_completed
+        waiting = {pool.submit(compute_features, c, self.crop(m)[0]): m for m in stale}
+        ready = set(maps) - {m.name for m in stale}
+        queued: Dict[Tuple[str, str], object] = {}
+        inputs: Dict[str, PairInput] = {}
+
+        def submit_ready() -> None:
+            for ab in todo:
+                if ab not in queued and ab[0] in ready and ab[1] in ready:
+                    for n in ab:
+                        if n not in inputs:
+                            inputs[n] = self.input(maps[n])
+                    queued[ab] = pool.submit(estimate_pair, c, inputs[ab[0]], inputs[ab[1]], seeds[ab])
+
+        submit_ready()
+        for fut in as_completed(waiting):
+            m = waiting[fut]
+            self._features[m.name] = (m.key, fut.result())
+            ready.add(m.name)
+            submit_ready()
+        return [queued[ab].result() for ab in todo]
+
+    def map(self, fn, *iterables):
+        """fn over the arguments in the worker pool (in this process when workers == 1)."""
+        pool = _pool(self.config.workers)
+        return list(pool.map(fn, *iterables)) if pool is not None else list(map(fn, *iterables))
+
+
+def _worker_init() -> None:
+    """One OpenCV thread and one BLAS thread per worker: the pool already keeps every core
+    busy, and the libraries' own threads on top of it only contend (two workers running two
+    threads each are slower than two workers with one each)."""
+    import cv2
+    cv2.setNumThreads(1)
+    _one_blas_thread()
+
+
+def _one_blas_thread() -> None:
+    """numpy's BLAS to one thread in this process where it is OpenBLAS (Debian's libblas.so.3
+    once libopenblas is installed). RANSAC scores hypotheses by matrix products, and
+    OpenBLAS's threads spin after each one, costing CPU the other worker could use. Other BLAS
+    builds are left as they are."""
+    import ctypes
+    for name in ('libblas.so.3', 'libopenblas.so.0'):
+        try:
+            lib = ctypes.CDLL(name)
+        except OSError:
+            continue
+        set_threads = getattr(lib, 'openblas_set_num_threads', None)
+        if set_threads is not None:
+            set_threads(1)
+            return
+
+
+def _pool(workers: int):
+    """The process pool shared by every merger in this process (None: work inline).
+
+    'forkserver' starts clean workers that do not inherit the ROS node's threads."""
+    global _POOL, _POOL_SIZE
+    n = workers or os.cpu_count() or 1
+    if n <= 1:
+        return None
+    if _POOL is None or _POOL_SIZE != n:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+        if _POOL is not None:
+            _POOL.shutdown(wait=False)
+        _POOL = ProcessPoolExecutor(max_workers=n, mp_context=multiprocessing.get_context('forkserver'),
+                                    initializer=_worker_init)
+        _POOL_SIZE = n
+    return _POOL
