@@ -131,9 +131,20 @@ def test_keeps_most_reliable_transform(intel):
     m.update_map('b', ps[1][0])
     m.estimate()
     kept = m.placements()['b']
-    # the same map again (new version): the estimate is no better, so nothing moves
-    m.update_map('b', Grid(ps[1][0].data.copy(), 0.05, ps[1][0].origin))
+    link, first = m._edges[('a', 'b')], m._attempts[('a', 'b')]
+    # a new version of b's map, one free cell a little less sure (still free): the pair is
+    # estimated again on the same grids, and its estimate is no more reliable than the kept
+    # link (a byte-identical map would not even be estimated again)
+    data = ps[1][0].data.copy()
+    r, c = np.argwhere(data == 0)[0]
+    data[r, c] = 1
+    m.update_map('b', Grid(data, 0.05, ps[1][0].origin))
     m.estimate()
+    again = m._attempts[('a', 'b')]
+    assert again is not first and again.accepted
+    assert again.inlier_ratio <= link.inlier_ratio + m.config.replace_margin
+    # so the kept link and the placement made of it stay, nothing moves
+    assert m._edges[('a', 'b')] is link
     assert m.placements()['b'] is kept
 
 
