@@ -41,7 +41,7 @@ unit: build
 test: build
 	@$(ROS_ENV) && cd $(CURDIR) && rc=0; \
 	python3 -m pytest -q test/unit || rc=1; \
-	for t in test/*.test; do \
+	for t in test/ros/*.test; do \
 	  echo "== rostest $$t"; rostest --text multi_map_merge $$(basename $$t) > $(WS)/rostest.log 2>&1; r=$$?; \
 	  grep -E 'RESULT:|TESTS:|ERRORS:|FAILURES:' $(WS)/rostest.log | sed 's/\x1b\[[0-9;]*m//g'; \
 	  grep -q 'RESULT: SUCCESS' $(WS)/rostest.log || r=1; \

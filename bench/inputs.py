@@ -18,9 +18,8 @@ sys.path.insert(0, os.path.join(REPO, 'src'))
 SHARED = os.path.abspath(os.path.join(REPO, '..', 'shared'))
 DATA = os.path.join(SHARED, 'data')
 
-from multi_map_merge.core.grid import known_bbox  # noqa: E402
 from multi_map_merge.core.mapio import load_map, save_map  # noqa: E402
-from multi_map_merge.lab.synth import cut_piece, random_poses, split_rects  # noqa: E402
+from multi_map_merge.lab.synth import cut_piece, pieces_windows, random_poses, split_rects  # noqa: E402
 
 
 def world_map(name):
@@ -35,20 +34,6 @@ def world_map(name):
 def pieces_split(world, n, seed=0, overlap=0.3):
     """n overlapping pieces tiling the world (split_rects), each at a random pose: [(grid, T)]."""
     return [cut_piece(world, r, p) for r, p in zip(split_rects(world, n, overlap), random_poses(n, seed))]
-
-
-def pieces_windows(world, n, frac=0.6, seed=0):
-    """n world-sized robots: random windows of ``frac`` of the world each (all pairs overlap,
-    the worst case for estimation), each at a random pose: [(grid, T)]."""
-    rng = np.random.default_rng(seed)
-    r0, r1, c0, c1 = known_bbox(world.levels())
-    h, w = int((r1 - r0) * frac), int((c1 - c0) * frac)
-    out = []
-    for p in random_poses(n, seed + 1):
-        a = int(rng.integers(r0, r1 - h + 1))
-        b = int(rng.integers(c0, c1 - w + 1))
-        out.append(cut_piece(world, (a, a + h, b, b + w), p))
-    return out
 
 
 def write_inputs(name, grids_truth, root):

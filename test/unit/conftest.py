@@ -1,4 +1,5 @@
-"""Shared helpers for the core's unit tests (no ROS master needed)."""
+"""Shared fixtures and helpers of the unit tests (no ROS master needed): the shipped maps, the
+shared data, a merger run on some maps, pose errors."""
 import math
 import os
 import sys
@@ -11,6 +12,9 @@ sys.path.insert(0, os.path.join(REPO, 'src'))
 DATA = os.path.join(REPO, 'test', 'data')
 SHARED = os.path.abspath(os.path.join(REPO, '..', 'shared', 'data'))
 
+from multi_map_merge.core.config import MergeConfig  # noqa: E402
+from multi_map_merge.core.mapio import load_map  # noqa: E402
+from multi_map_merge.core.merger import MapMerger  # noqa: E402
 from multi_map_merge.core.transforms import pose_distance  # noqa: E402
 
 
@@ -31,3 +35,30 @@ def pose_error(T_est, T_true):
 def truth(T_ref, T_k):
     """Pose of piece k's frame in the reference piece's frame."""
     return np.linalg.inv(T_ref) @ T_k
+
+
+def pytest_configure(config):
+    config.addinivalue_line('markers', 'slow: takes tens of seconds (real buildings, simulated robots); '
+                                       '-m "not slow" skips it')
+
+
+@pytest.fixture(scope='session')
+def intel():
+    """The Intel lab's map shipped in test/data (CARMEN, rasterised)."""
+    return load_map(os.path.join(DATA, 'intel.yaml'))
+
+
+@pytest.fixture(scope='session')
+def house():
+    """The AWS small house's map shipped in test/data."""
+    return load_map(os.path.join(DATA, 'aws_small_house.yaml'))
+
+
+def merged(maps, **config):
+    """A MapMerger after one estimation cycle on ``maps`` (name -> Grid or map_server .yaml
+    path, fed in that order); ``config``: MergeConfig fields."""
+    m = MapMerger(MergeConfig(**config))
+    for n, g in maps.items():
+        m.update_map(n, load_map(g) if isinstance(g, str) else g)
+    m.estimate()
+    return m

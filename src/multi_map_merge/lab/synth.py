@@ -72,3 +72,48 @@ def random_poses(n: int, seed: int, max_offset: float = 5.0,
     rng = np.random.default_rng(seed)
     return [(float(rng.uniform(-max_offset, max_offset)), float(rng.uniform(-max_offset, max_offset)),
              float(rng.uniform(-max_yaw, max_yaw))) for _ in range(n)]
+
+
+def pieces_windows(world: Grid, n: int, frac: float = 0.6, seed: int = 0) -> List[Tuple[Grid, np.ndarray]]:
+    """n world-sized robots: random windows of ``frac`` of the world each (all pairs overlap,
+    the worst case for estimation), each at a random pose: [(grid, T_world_k)]."""
+    rng = np.random.default_rng(seed)
+    r0, r1, c0, c1 = known_bbox(world.levels())
+    h, w = int((r1 - r0) * frac), int((c1 - c0) * frac)
+    out = []
+    for p in random_poses(n, seed + 1):
+        a = int(rng.integers(r0, r1 - h + 1))
+        b = int(rng.integers(c0, c1 - w + 1))
+        out.append(cut_piece(world, (a, a + h, b, b + w), p))
+    return out
+
+
+def bad_grids(rng: np.random.Generator, n: int):
+    """n (data, width, height, resolution, origin) tuples, each wrong in at least one way: what
+    fuzzing the grid checks and the node feeds on."""
+    for _ in range(n):
+        w, h = int(rng.integers(1, 60)), int(rng.integers(1, 60))
+        data = rng.integers(-1, 101, w * h).astype(np.int16)
+        res, origin = 0.05, [0.0, 0.0, 0.0]
+        kind = rng.integers(0, 8)
+        if kind == 0:
+            data = data[:int(rng.integers(0, w * h))]                   # truncated
+        elif kind == 1:
+            data = np.concatenate([data, rng.integers(-1, 101, int(rng.integers(1, 50)))])
+        elif kind == 2:
+            w = 0 if rng.random() < 0.5 else w
+            h = 0 if w else h                                            # an empty side
+            data = data[:w * h] if w * h else data
+        elif kind == 3:
+            res = float(rng.choice([0.0, -0.05, np.nan, np.inf, -np.inf]))
+        elif kind == 4:
+            origin[int(rng.integers(0, 3))] = float(rng.choice([np.nan, np.inf, -np.inf]))
+        elif kind == 5:
+            data[int(rng.integers(0, w * h))] = int(rng.choice([-2, -128, 101, 127]))
+        elif kind == 6:
+            w, h = 100000, 100000                                       # absurd size
+        else:
+            data = rng.integers(-128, 128, int(rng.integers(0, 3 * w * h + 1)))
+            if data.size == w * h and data.min() >= -1 and data.max() <= 100:
+                data = data[:-1] if data.size else data
+        yield data, w, h, res, origin

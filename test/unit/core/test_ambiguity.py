@@ -5,22 +5,13 @@ import math
 import os
 
 import numpy as np
-from conftest import DATA, pose_error
+import pytest
+from conftest import DATA, merged, pose_error
 
-from multi_map_merge.core.config import MergeConfig
 from multi_map_merge.core.grid import Grid, known_bbox
 from multi_map_merge.core.mapio import load_map
-from multi_map_merge.core.merger import MapMerger
 from multi_map_merge.core.transforms import xyyaw
 from multi_map_merge.lab.synth import cut_piece
-
-
-def merged(grids, **kw):
-    m = MapMerger(MergeConfig(**kw))
-    for n, g in grids.items():
-        m.update_map(n, g)
-    m.estimate()
-    return m
 
 
 def look_alike_building():
@@ -37,6 +28,7 @@ def look_alike_building():
     return double, single, child, T
 
 
+@pytest.mark.slow
 def test_map_that_fits_both_halves_stays_unmerged_and_says_why():
     double, single, child, T = look_alike_building()
     m = merged({'a': double, 'b': child})

@@ -4,7 +4,6 @@ import math
 import os
 import signal
 import subprocess
-import sys
 import threading
 import time
 import unittest
@@ -17,10 +16,8 @@ import yaml
 from map_msgs.msg import OccupancyGridUpdate
 from rosgraph_msgs.msg import Log
 from rospy.numpy_msg import numpy_msg
+from rostest_helpers import Listener, RobotPlayer, data_file, lookup, make_pieces, wait_until
 from tf2_msgs.msg import TFMessage
-
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from test_merge_node import Listener, RobotPlayer, data_file, lookup, make_pieces, wait_until
 
 from multi_map_merge.core.grid import Grid
 from multi_map_merge.core.mapio import load_map

@@ -7,13 +7,14 @@ import sys
 
 import numpy as np
 import pytest
+from conftest import REPO
 
 from multi_map_merge.core import matching as est
 from multi_map_merge.core import verify
 from multi_map_merge.core.grid import FREE, OCCUPIED, known_bbox
 from multi_map_merge.core.transforms import apply, rigid_from_points, se2
 
-SRC = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))), 'src')
+SRC = os.path.join(REPO, 'src')
 
 
 def _matches(seed, n=300, inlier_share=0.4, noise=1.0):

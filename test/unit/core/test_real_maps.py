@@ -6,7 +6,7 @@ import os
 
 import numpy as np
 import pytest
-from conftest import DATA, REPO, pose_error, truth
+from conftest import DATA, merged, pose_error, truth
 
 from multi_map_merge.core import verify
 from multi_map_merge.core.grid import FREE, OCCUPIED
@@ -18,12 +18,8 @@ MAZE = os.path.join(DATA, 'tb3_dans_maze')
 
 
 def merge(paths, names=None):
-    m = MapMerger()
-    names = names or [os.path.basename(p)[:-5] for p in paths]
-    for n, p in zip(names, paths):
-        m.update_map(n, load_map(p))
-    m.estimate()
-    return m
+    """A merger after one cycle on map files, each robot named ``names`` or by its file's stem."""
+    return merged(dict(zip(names or [os.path.basename(p)[:-5] for p in paths], paths)))
 
 
 def cell_agreement(m, a, b):
@@ -124,6 +120,7 @@ def test_tb3_house_trap_with_initial_poses(shared_data):
     assert known > 0.7 * (whole.data >= 0).sum() and known > 1.5 * stacked, (known, stacked)
 
 
+@pytest.mark.slow
 def test_different_buildings_never_merge(shared_data):
     """False-merge rate on pairs with no true overlap, all from ../shared/data: zero."""
     d = shared_data
@@ -164,7 +161,7 @@ def test_dans_maze_each_robot_map_belongs_where_the_full_map_says():
     assert at_identity[1] < 0.85, at_identity                 # the drifted one
     found = {}
     for n, g in robots.items():
-        m = merge_grids({'full': full, 'r': g})
+        m = merged({'full': full, 'r': g})
         if 'r' in m.placements():
             T = m.placements()['r'].T
             x, y, yaw = xyyaw(T)
@@ -174,8 +171,8 @@ def test_dans_maze_each_robot_map_belongs_where_the_full_map_says():
             assert found[n] >= max(0.95, at_identity[n]), (n, found[n], at_identity[n])
     assert {1, 2} <= set(found), found
     # the merge of the three, placed in the full map: every robot frame near identity
-    m = merge_grids({'tb3_%d' % n: g for n, g in robots.items()})
-    mf = merge_grids({'full': full, 'merged': m.compose()})
+    m = merged({'tb3_%d' % n: g for n, g in robots.items()})
+    mf = merged({'full': full, 'merged': m.compose()})
     assert 'merged' in mf.placements()
     T_full_merged = mf.placements()['merged'].T
     for n, pl in m.placements().items():
@@ -183,14 +180,7 @@ def test_dans_maze_each_robot_map_belongs_where_the_full_map_says():
         assert math.hypot(x, y) < 0.3 and abs(math.degrees(yaw)) < 3.0, (n, x, y, math.degrees(yaw))
 
 
-def merge_grids(grids):
-    m = MapMerger()
-    for n, g in grids.items():
-        m.update_map(n, g)
-    m.estimate()
-    return m
-
-
+@pytest.mark.slow
 def test_isr_small_live_orders_never_end_on_a_look_alike(shared_data):
     """The three real robots' gmapping bags, their maps fed in live-like orders (half of the
     maps dropped, estimation at random moments, seeded): an early link can be a corridor
@@ -234,12 +224,10 @@ def test_look_alike_windows_with_little_evidence_are_not_placed(shared_data, wor
     in these a link of 10-20 inliers whose walls agree only in the main (0.83-0.93) put a robot
     16-40 m off, most turned by 90-180 degrees. With the evidence gate every placed robot is
     right; without it (few_inliers 0) the same windows place one tens of metres off."""
-    import sys
-    sys.path.insert(0, os.path.join(REPO, 'bench'))
-    import inputs
-
     from multi_map_merge.core.config import MergeConfig
-    pieces = inputs.pieces_windows(inputs.world_map(world), robots, frac, seed)
+    from multi_map_merge.lab.synth import pieces_windows
+    world_map = load_map(os.path.join(shared_data, 'ground_truth', '%s_gt.yaml' % world))
+    pieces = pieces_windows(world_map, robots, frac, seed)
     errors = {}
     gated = MergeConfig().few_inliers
     for gate in (gated, 0):

@@ -12,7 +12,7 @@ from conftest import DATA, REPO, pose_error
 from scipy.spatial import cKDTree
 
 from multi_map_merge.core.grid import FREE, OCCUPIED, Grid, GridError
-from multi_map_merge.core.mapio import load_map, save_map
+from multi_map_merge.core.mapio import save_map
 from multi_map_merge.core.transforms import inverse, se2, xyyaw
 from multi_map_merge.lab.evaluate import load_transforms, load_truth, occupied_points, score_map, transform_errors
 from multi_map_merge.lab.synth import cut_piece, random_poses
@@ -20,16 +20,6 @@ from multi_map_merge.lab.synth import cut_piece, random_poses
 HOUSE = os.path.join(DATA, 'aws_small_house.yaml')
 INTEL = os.path.join(DATA, 'intel.yaml')
 OFF = se2(0.15, 0.10, math.radians(3.0))   # a coarse pose this far off (in the truth's frame)
-
-
-@pytest.fixture(scope='module')
-def house():
-    return load_map(HOUSE)
-
-
-@pytest.fixture(scope='module')
-def intel():
-    return load_map(INTEL)
 
 
 def in_frame(g: Grid, T: np.ndarray, name: str = 'k') -> Grid:

@@ -8,7 +8,6 @@ maps: the node must refuse each one, say why (diagnostics and an ERROR log namin
 running, and keep the merged map unchanged; a valid map afterwards clears the error.
 """
 import math
-import os
 import sys
 import threading
 import time
@@ -21,9 +20,7 @@ import rostest
 import tf2_ros
 from diagnostic_msgs.msg import DiagnosticStatus
 from rosgraph_msgs.msg import Log
-
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from test_merge_node import (
+from rostest_helpers import (
     Listener,
     RobotPlayer,
     compare_with_truth,
@@ -32,6 +29,7 @@ from test_merge_node import (
     fmt_pose,
     lookup,
     make_pieces,
+    same_map,
     union_mask_of,
     wait_until,
 )
@@ -43,15 +41,6 @@ from multi_map_merge.ros.convert import grid_to_msg
 PKG = 'multi_map_merge'
 POSES = [(0.5, 1.0, math.radians(-30.0)), (-2.0, 3.0, math.radians(150.0))]
 ESTIMATION_PERIOD = 0.5   # s, estimation_rate in bad_input.test
-
-
-def same_map(a, b):
-    """True when two OccupancyGrid messages describe the same grid (geometry and cells)."""
-    return (a.info.width == b.info.width and a.info.height == b.info.height
-            and abs(a.info.resolution - b.info.resolution) < 1e-9
-            and abs(a.info.origin.position.x - b.info.origin.position.x) < 1e-9
-            and abs(a.info.origin.position.y - b.info.origin.position.y) < 1e-9
-            and np.array_equal(np.asarray(a.data), np.asarray(b.data)))
 
 
 class TestBadInput(unittest.TestCase):

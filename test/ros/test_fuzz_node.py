@@ -1,8 +1,6 @@
 #!/usr/bin/env python3
 """rostest: hundreds of random bad OccupancyGrids and OccupancyGridUpdates into the live node;
 it stays alive, keeps publishing, and the merged map stays exactly as it was."""
-import os
-import sys
 import time
 import unittest
 
@@ -13,15 +11,11 @@ import rostest
 from diagnostic_msgs.msg import DiagnosticStatus
 from map_msgs.msg import OccupancyGridUpdate
 from rospy.numpy_msg import numpy_msg
-
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), 'unit'))
-from test_bad_input import same_map
-from test_fuzz import bad_grids
-from test_merge_node import Listener, RobotPlayer, data_file, make_pieces, wait_until
+from rostest_helpers import Listener, RobotPlayer, data_file, make_pieces, same_map, wait_until
 
 from multi_map_merge.core.grid import Grid
 from multi_map_merge.core.mapio import load_map
+from multi_map_merge.lab.synth import bad_grids
 from multi_map_merge.ros.convert import NumpyGrid, grid_to_msg
 
 PKG = 'multi_map_merge'

@@ -8,18 +8,12 @@ import pytest
 from conftest import DATA, pose_error
 
 from multi_map_merge.core.grid import FREE, OCCUPIED, Grid
-from multi_map_merge.core.mapio import load_map
 from multi_map_merge.core.posegraph import optimise, worst_residual
 from multi_map_merge.core.transforms import relative, se2, wrap_angle
 from multi_map_merge.lab import simulate as sim
 from multi_map_merge.lab.evaluate import score_map, transform_errors
 
 HOUSE = os.path.join(DATA, 'aws_small_house.yaml')
-
-
-@pytest.fixture(scope='module')
-def house():
-    return load_map(HOUSE)
 
 
 @pytest.fixture(scope='module')
@@ -51,6 +45,7 @@ def test_raycast_hits_the_walls_of_the_map(house):
         assert not occ[np.rint(r2).astype(int), np.rint(c2).astype(int)].any()
 
 
+@pytest.mark.slow
 def test_team_starts_together_and_explores_apart(team):
     robots, lone = team
     starts = np.array([r.start[:2] for r in robots])
@@ -63,6 +58,7 @@ def test_team_starts_together_and_explores_apart(team):
     assert lone.distance > 2.0 * max(r.distance for r in robots)                # one robot does it all
 
 
+@pytest.mark.slow
 def test_sensors_follow_the_datasheet_and_the_clock(team):
     r = team[0][0]
     sc = r.scans
@@ -80,6 +76,7 @@ def test_sensors_follow_the_datasheet_and_the_clock(team):
     assert r.maps[-1][1].frame_id == 'tb3_0/map'
 
 
+@pytest.mark.slow
 def test_errors_grow_with_distance(team):
     robots, lone = team
 
@@ -96,6 +93,7 @@ def test_errors_grow_with_distance(team):
     assert slam_error(lone)[1] > max(slam_error(r)[1] for r in robots)
 
 
+@pytest.mark.slow
 def test_deterministic_for_a_seed(house):
     cfg = sim.SimConfig(robots=2, seed=7, viewpoint_spacing=3.0)
     a, _ = sim.simulate_world(house, cfg)
@@ -119,6 +117,7 @@ def test_gmapping_counting_model():
     assert (lv == OCCUPIED).sum() == 1
 
 
+@pytest.mark.slow
 def test_team_maps_merge_and_score_against_the_truth(house, team):
     from multi_map_merge.core.config import MergeConfig
     from multi_map_merge.core.merger import MapMerger

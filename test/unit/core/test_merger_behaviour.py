@@ -13,11 +13,6 @@ from multi_map_merge.core.state import load_state, save_state
 from multi_map_merge.lab.synth import cut_piece
 
 
-@pytest.fixture(scope='module')
-def intel():
-    return load_map(os.path.join(DATA, 'intel.yaml'))
-
-
 def strip_pieces(w, poses):
     """Three pieces along the map's width: A-B and B-C overlap, A-C do not."""
     r0, r1, c0, c1 = known_bbox(w.levels())

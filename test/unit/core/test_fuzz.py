@@ -8,37 +8,7 @@ from conftest import DATA
 from multi_map_merge.core.grid import Grid, GridError, apply_update, make_grid
 from multi_map_merge.core.mapio import load_map
 from multi_map_merge.core.merger import MapMerger
-from multi_map_merge.lab.synth import cut_piece, random_poses, split_rects
-
-
-def bad_grids(rng, n):
-    """(data, width, height, resolution, origin) tuples, each wrong in at least one way."""
-    for _ in range(n):
-        w, h = int(rng.integers(1, 60)), int(rng.integers(1, 60))
-        data = rng.integers(-1, 101, w * h).astype(np.int16)
-        res, origin = 0.05, [0.0, 0.0, 0.0]
-        kind = rng.integers(0, 8)
-        if kind == 0:
-            data = data[:int(rng.integers(0, w * h))]                   # truncated
-        elif kind == 1:
-            data = np.concatenate([data, rng.integers(-1, 101, int(rng.integers(1, 50)))])
-        elif kind == 2:
-            w = 0 if rng.random() < 0.5 else w
-            h = 0 if w else h                                            # an empty side
-            data = data[:w * h] if w * h else data
-        elif kind == 3:
-            res = float(rng.choice([0.0, -0.05, np.nan, np.inf, -np.inf]))
-        elif kind == 4:
-            origin[int(rng.integers(0, 3))] = float(rng.choice([np.nan, np.inf, -np.inf]))
-        elif kind == 5:
-            data[int(rng.integers(0, w * h))] = int(rng.choice([-2, -128, 101, 127]))
-        elif kind == 6:
-            w, h = 100000, 100000                                       # absurd size
-        else:
-            data = rng.integers(-128, 128, int(rng.integers(0, 3 * w * h + 1)))
-            if data.size == w * h and data.min() >= -1 and data.max() <= 100:
-                data = data[:-1] if data.size else data
-        yield data, w, h, res, origin
+from multi_map_merge.lab.synth import bad_grids, cut_piece, random_poses, split_rects
 
 
 def test_every_bad_grid_gets_a_reason():
@@ -92,6 +62,7 @@ def strange_valid_grids(rng, n):
                    (float(rng.uniform(-50, 50)), float(rng.uniform(-50, 50)), float(rng.uniform(-3, 3))))
 
 
+@pytest.mark.slow
 def test_strange_maps_never_crash_or_merge():
     world = load_map(os.path.join(DATA, 'intel.yaml'))
     ps = [cut_piece(world, r, p)[0] for r, p in zip(split_rects(world, 2, 0.3), random_poses(2, 1))]
