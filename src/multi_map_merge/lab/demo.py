@@ -24,7 +24,7 @@ import numpy as np
 import yaml
 
 from ..core.grid import Grid
-from ..core.mapio import grid_to_pgm, load_map, save_map
+from ..core.mapio import grid_to_pgm, load_map
 from ..core.transforms import apply, cell_to_metric, inverse, pose_to_image, se2
 
 # the paper's Table 1 (four Turtlebot3s vs one, 117 m2 house)
@@ -39,20 +39,6 @@ def write_config(base_yaml: str, out_yaml: str, overrides: Dict[str, object]) ->
     cfg.update(overrides)
     with open(out_yaml, 'w') as f:
         yaml.safe_dump(cfg, f, sort_keys=False)
-
-
-def save_record(rec: Dict, out_dir: str) -> bool:
-    """Write a replay's record (see ros.replay.record_replay): merged.{yaml,pgm} and
-    record.yaml. False when no merged map was ever received."""
-    os.makedirs(out_dir, exist_ok=True)
-    doc = {'clock': rec.get('clock'), 'robots': rec['robots']}
-    with open(os.path.join(out_dir, 'record.yaml'), 'w') as f:
-        yaml.safe_dump(doc, f, sort_keys=False)
-    if rec.get('map') is None:
-        print('record_replay: no merged map was received on /map', file=sys.stderr)
-        return False
-    save_map(rec['map'], os.path.join(out_dir, 'merged.yaml'))
-    return True
 
 
 # ------------------------------------------------------------------------------ pictures

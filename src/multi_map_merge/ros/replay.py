@@ -3,16 +3,20 @@ read back, and a replay through the merger recorded (trajectories through the me
 from __future__ import annotations
 
 import math
+import os
+import sys
 import time
 from typing import Dict, List, Optional, Sequence
 
 import numpy as np
 import rospy
 import tf2_ros
+import yaml
 from diagnostic_msgs.msg import DiagnosticArray
 from rospy.numpy_msg import numpy_msg
 
 from ..core.grid import Grid, GridError
+from ..core.mapio import save_map
 from ..core.transforms import compose, relative, se2
 from .convert import NumpyGrid, grid_from_msg, grid_to_msg, quaternion_yaw, transform_msg
 from .diagnostics import diagnostics_by_robot
@@ -171,3 +175,35 @@ def record_replay(robots: Sequence[str], period: float = 0.5, idle: float = 4.0,
     return {'map': state['map'], 'clock': state['clock'],
             'robots': {r: {'trajectory': traj[r], 'tf': last_tf[r], 'diagnostics': state['diag'].get(r, {})}
                        for r in robots}}
+
+
+def save_record(rec: Dict, out_dir: str) -> bool:
+    """Write a replay's record (see :func:`record_replay`): merged.{yaml,pgm} and
+    record.yaml. False when no merged map was ever received."""
+    os.makedirs(out_dir, exist_ok=True)
+    doc = {'clock': rec.get('clock'), 'robots': rec['robots']}
+    with open(os.path.join(out_dir, 'record.yaml'), 'w') as f:
+        yaml.safe_dump(doc, f, sort_keys=False)
+    if rec.get('map') is None:
+        print('record_replay: no merged map was received on /map', file=sys.stderr)
+        return False
+    save_map(rec['map'], os.path.join(out_dir, 'merged.yaml'))
+    return True
+
+
+def record_replay_main(argv: Optional[List[str]] = None) -> int:
+    """``record_replay -o DIR ROBOT...``: watch a bag replay through the merger and keep what it
+    made: DIR/merged.{yaml,pgm} (the last /map) and DIR/record.yaml (each robot's trajectory in
+    the merged frame through the merged TF, its map frame's pose, its /diagnostics). Stops when
+    /clock has stood still for --idle seconds (the bag ended)."""
+    import argparse
+    ap = argparse.ArgumentParser(prog='record_replay', description=record_replay_main.__doc__.split('\n')[0])
+    ap.add_argument('robots', nargs='+')
+    ap.add_argument('-o', '--output', required=True)
+    ap.add_argument('--idle', type=float, default=4.0, help='wall seconds of a still /clock that end the recording')
+    ap.add_argument('--timeout', type=float, default=1800.0)
+    ap.add_argument('--period', type=float, default=0.5, help='wall seconds between TF samples')
+    a = ap.parse_args(rospy.myargv()[1:] if argv is None else argv)
+    rospy.init_node('record_replay', anonymous=True)
+    rec = record_replay(a.robots, a.period, a.idle, a.timeout)
+    return 0 if save_record(rec, a.output) else 1

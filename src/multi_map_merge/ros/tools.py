@@ -4,6 +4,7 @@ the TF relay of ``slam:=gmapping`` replays."""
 from __future__ import annotations
 
 import fnmatch
+import sys
 import time
 from typing import Dict, List, Optional, Sequence
 
@@ -13,6 +14,7 @@ import tf2_ros
 from diagnostic_msgs.msg import DiagnosticArray
 
 from ..core.grid import Grid
+from ..core.mapio import load_map, save_map
 from ..core.transforms import cell_to_metric, se2
 from .convert import NumpyGrid, grid_from_msg, grid_to_msg, quaternion_yaw, transform_msg
 from .diagnostics import diagnostics_by_robot
@@ -165,3 +167,54 @@ def run_tf_relay(src: str = '/tf_bag', dst: str = '/tf', drop_parent: str = '*/m
 
     rospy.Subscriber(src, TFMessage, on_tf, queue_size=100)
     rospy.spin()
+
+
+# ---------------------------------------------------------------- the scripts
+def publish_maps_main(argv: Optional[List[str]] = None) -> int:
+    """``publish_maps tb3_0:A.yaml tb3_1:B.yaml ... [--steps 4] [--period 2]``: publish saved
+    maps on /<robot>/map as gmapping robots would (latched, growing), for demos and tests
+    without robots."""
+    import argparse
+    ap = argparse.ArgumentParser(prog='publish_maps', description=publish_maps_main.__doc__.split('\n')[0])
+    ap.add_argument('maps', nargs='+', help='robot:map.yaml pairs')
+    ap.add_argument('--steps', type=int, default=4, help='growth steps before the whole map')
+    ap.add_argument('--period', type=float, default=2.0, help='seconds between map messages')
+    ap.add_argument('--once', action='store_true', help='stop after the whole map was published')
+    a = ap.parse_args(rospy.myargv()[1:] if argv is None else argv)
+    robots, grids = [], []
+    for item in a.maps:
+        robot, _, path = item.partition(':')
+        if not path:
+            ap.error('%r is not robot:map.yaml' % item)
+        robots.append(robot)
+        grids.append(load_map(path))
+    run_map_publisher(robots, grids, a.steps, a.period, once=a.once)
+    return 0
+
+
+def save_map_main(argv: Optional[List[str]] = None) -> int:
+    """``save_map -f merged [--topic /map] [--timeout 30]``: save the next OccupancyGrid on a
+    topic as map_server files (map_saver is not in Debian)."""
+    import argparse
+    ap = argparse.ArgumentParser(prog='save_map', description=save_map_main.__doc__.split('\n')[0])
+    ap.add_argument('-f', '--file', default='map', help='output base name (writes .pgm and .yaml)')
+    ap.add_argument('--topic', default='/map')
+    ap.add_argument('--timeout', type=float, default=30.0)
+    a = ap.parse_args(rospy.myargv()[1:] if argv is None else argv)
+    init_node('save_map')
+    grid = wait_for_map(a.topic, a.timeout)
+    if grid is None:
+        print('save_map: no map on %s within %.0f s' % (a.topic, a.timeout), file=sys.stderr)
+        return 1
+    pgm, yml = save_map(grid, a.file + '.yaml')
+    print('saved %s and %s (%dx%d cells)' % (pgm, yml, grid.width, grid.height))
+    return 0
+
+
+def tf_relay_main() -> int:
+    """``tf_relay``: a bag's /tf without its recorded SLAM map -> odom (slam:=gmapping replays).
+    Parameters: ~src (/tf_bag), ~dst (/tf), ~drop_parent (*/map), ~drop_child (*/odom)."""
+    rospy.init_node('tf_relay')
+    run_tf_relay(rospy.get_param('~src', '/tf_bag'), rospy.get_param('~dst', '/tf'),
+                 rospy.get_param('~drop_parent', '*/map'), rospy.get_param('~drop_child', '*/odom'))
+    return 0
