@@ -15,8 +15,7 @@ import numpy as np
 from .grid import UNKNOWN, known_bbox, to_image
 
 _MARGIN = 32  # cells of unknown around the known box: AKAZE drops keypoints whose
-# descriptor window leaves the image, so a tight crop loses the walls at the border (measured:
-# 73 features on a tb3_house map with 8 cells, 170 with 40, 181 on the whole 608x384 canvas).
+# descriptor window leaves the image, so a tight crop loses the walls at the border.
 
 
 @dataclass
@@ -59,10 +58,8 @@ class FeatureExtractor:
     def __init__(self, threshold: float = 0.0003, max_features: int = 2000,
                  detect_cells: int = 0):
         # Two octaves, not OpenCV's four: on occupancy images the coarser octaves (blobs of
-        # 6-13 cells) yield no keypoint at this threshold (measured on the house, maze, mrgs,
-        # aws and intel..edmonton maps: the same features but for 1-2 on 5 of 33 maps), and
-        # building them costs 5-10% of AKAZE's time. (Fewer layers per octave would save more
-        # but lose features the house and maze tests need.)
+        # 6-13 cells) yield next to no keypoint at this threshold, and building them costs
+        # time. (Fewer layers per octave would save more but lose features small maps need.)
         self._akaze = cv2.AKAZE_create(threshold=threshold, nOctaves=2)
         self._max = int(max_features)
         self._cells = int(detect_cells)

@@ -3,10 +3,8 @@
 - Matching: brute force on Hamming distance, keeping each feature's two nearest neighbours
   as candidates, and neither a ratio test nor cross-check as a filter. Grid maps repeat
   themselves (alike corners, doors, corridors): the true partner of a feature is often the
-  second nearest, and both filters throw exactly those matches away. Measured on the
-  tb3_dans_maze maps, the ratio test (0.8) left 2-9 true inliers per pair and a wrong best
-  hypothesis; two candidates gave 20-30 and the right one. RANSAC's two-point rigid samples
-  tolerate the extra outliers.
+  second nearest, and both filters throw exactly those matches away (docs/measurements.md).
+  RANSAC's two-point rigid samples tolerate the extra outliers.
 - RANSAC: rigid (rotation + translation, determinant +1; never a mirror, never a scale),
   from two-point samples, then a least-squares refit on the inliers.
 - Reliability: the paper's inlier ratio ``N_inlier / (N_inlier + N_outlier)``, counted over

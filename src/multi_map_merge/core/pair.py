@@ -115,14 +115,12 @@ DESCRIBED_AT_MOST = 16   # x feature_cells: the largest image a map is described
 def _at_one_scale(config: MergeConfig, pa: PairInput, ch: PairInput) -> Tuple[Features, Features]:
     """The pair's features described at one scale (parent's, child's). A map whose known area
     is large is described on a coarser image (``feature_cells``), and keypoints of images at
-    different scales do not match: windows of 220-330 cells of 7 buildings against the whole
-    building merged 20 times in 68, at one scale 65. The coarser map is described again at the
-    finer map's factor (cached per process): the other way, a small map pooled by the big
-    one's factor keeps too few keypoints (aces: 0 merged in 8) ..."""
+    different scales do not match. The coarser map is described again at the finer map's
+    factor (cached per process): the other way, a small map pooled by the big one's factor
+    keeps too few keypoints ..."""
     coarser = pa if pa.features.factor >= ch.features.factor else ch
-    # ... but on an image of at most DESCRIBED_AT_MOST x feature_cells pixels: a whole edmonton
-    # (4.3 M known cells) at full resolution costs a worker 0.8 s and 680 MB, at a factor of 2
-    # 0.26 s and 290 MB.
+    # ... but on an image of at most DESCRIBED_AT_MOST x feature_cells pixels: a whole big
+    # building at full resolution would cost a worker seconds and hundreds of MB.
     f = max(min(pa.features.factor, ch.features.factor),
             coarsening(_known(coarser)[0], DESCRIBED_AT_MOST * config.feature_cells))
 
@@ -271,9 +269,7 @@ def _estimate_crops(config: MergeConfig, pa: PairInput, ch: PairInput, seed: int
             h.reason = 'inlier ratio %.3f < %.3f' % (h.inlier_ratio, c.min_inlier_ratio)
         elif h.inliers < c.few_inliers and h.agreement < c.few_inliers_min_agreement:
             # A look-alike place yields few agreeing matches and walls that agree only in the
-            # main. Measured on windows of 11 buildings (2720 right links): 9 of the 10 links that
-            # put a robot 16-46 m off (most turned by 180 degrees) had 10-20 inliers and
-            # agreements 0.83-0.93; of the 352 right links with under 21 inliers, 3 agreed below 0.96
+            # main; right links of few inliers agree almost perfectly (docs/measurements.md)
             h.reason = ('too little evidence: %d inliers and agreement %.3f (under %d inliers a link needs %.2f)'
                         % (h.inliers, h.agreement, c.few_inliers, c.few_inliers_min_agreement))
         else:
