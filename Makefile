@@ -12,10 +12,14 @@ APT_PKGS := python3-rospy python3-tf2-ros python3-nav-msgs python3-rostest pytho
   python3-roslaunch python3-rostopic python3-map-msgs python3-diagnostic-msgs python3-std-srvs \
   python3-geometry-msgs python3-sensor-msgs python3-catkin-pkg python3-setuptools \
   catkin ros-core-dev g++ python3-opencv python3-numpy python3-scipy python3-yaml \
-  python3-pytest python3-matplotlib python3-open3d python3-tf2-msgs
-ROS_ENV := source $(SETUP) && export ROS_HOME=$(WS)/ros_home ROS_LOG_DIR=$(WS)/ros_home/log
+  python3-pytest python3-matplotlib python3-open3d python3-tf2-msgs \
+  rosbash python3-rosparam python3-rosnode python3-rosgraph python3-rospkg python3-roslib
+# Tests, demo and bench start private masters on this machine only: every process names itself
+# by the loopback address, so nothing depends on the machine's hostname resolving.
+ROS_ENV := source $(SETUP) && export ROS_HOME=$(WS)/ros_home ROS_LOG_DIR=$(WS)/ros_home/log \
+  ROS_IP=127.0.0.1 ROS_MASTER_URI=http://127.0.0.1:11311 && unset ROS_HOSTNAME
 
-.PHONY: deps build test unit demo bench clean
+.PHONY: deps build test unit demo bench clean setup-path
 
 deps: $(WS)/.deps-ok
 $(WS)/.deps-ok:
@@ -59,3 +63,8 @@ clean:
 bench: build
 	@$(ROS_ENV) && cd $(CURDIR) && (dpkg-query -W python3-matplotlib >/dev/null 2>&1 || apt-get install -y -q python3-matplotlib >/dev/null) && \
 	python3 bench/run_bench.py && python3 bench/live_gap.py
+
+# The workspace's setup.bash, for the README's `rosrun multi_map_merge ...` commands in a shell:
+#   make build && source "$(make -s setup-path)"
+setup-path:
+	@echo $(SETUP)
