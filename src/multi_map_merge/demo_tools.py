@@ -42,9 +42,12 @@ def write_config(base_yaml: str, out_yaml: str, overrides: Dict[str, object]) ->
 
 
 def save_record(rec: Dict, out_dir: str) -> bool:
-    """Write a replay's record (see ros_adapter.record_replay): merged.{yaml,pgm} and
-    record.yaml. False when no merged map was ever received."""
+    """Write a replay's record (see ros_adapter.record_replay): merged.{yaml,pgm}, each
+    robot's last map as <robot>_map.{yaml,pgm}, and record.yaml. False when no merged map was
+    ever received."""
     os.makedirs(out_dir, exist_ok=True)
+    for robot, grid in (rec.get('robot_maps') or {}).items():
+        save_map(grid, os.path.join(out_dir, '%s_map.yaml' % robot))
     doc = {'clock': rec.get('clock'), 'robots': rec['robots']}
     with open(os.path.join(out_dir, 'record.yaml'), 'w') as f:
         yaml.safe_dump(doc, f, sort_keys=False)
@@ -151,6 +154,21 @@ def report(truth_path: str, record_dir: str, single_path: Optional[str], png: Op
     print('-' * len(h))
     for name, s in rows:
         print('%-30s %8.4f %10.3f m %10.3f %9.2f m2' % (name, s.fitness, s.inlier_rmse, s.coverage, s.wrong_occupied_m2))
+    # each robot's own last map, aligned alone to the truth: what the merge had to work with,
+    # and where that map's frame really sits (a SLAM map bends: its best fit to the world can
+    # differ from the start pose by a few degrees, and merging can only find the best fit)
+    fitted = {}
+    own = []
+    for r in robots:
+        p = os.path.join(record_dir, '%s_map.yaml' % r)
+        if os.path.exists(p):
+            s = score_map(load_map(p), gt, starts[r], max_distance)
+            fitted[r] = s.T
+            own.append(s)
+    if own:
+        print('%-30s %8.4f %10.3f m %10s %9.2f m2' % (
+            'robots\' own maps (mean of %d)' % len(own), float(np.mean([s.fitness for s in own])),
+            float(np.mean([s.inlier_rmse for s in own])), '-', float(np.mean([s.wrong_occupied_m2 for s in own]))))
     print('%-30s %8.4f %10.3f m' % ('paper: multi-robot (4)', *PAPER['multi']))
     print('%-30s %8.4f %10.3f m' % ('paper: single robot', *PAPER['single']))
     est = {}
@@ -160,8 +178,10 @@ def report(truth_path: str, record_dir: str, single_path: Optional[str], png: Op
             est[r] = se2(*tf)
     est.setdefault(ref, np.eye(3))
     errs = transform_errors(est, starts, ref)
+    fit_errs = transform_errors(est, fitted, ref) if ref in fitted else {}
     print()
-    print('every robot\'s map frame in the merged map (TF map -> <robot>/map at the end) against the truth:')
+    print('every robot\'s map frame in the merged map (TF map -> <robot>/map at the end) against the truth'
+          '%s:' % (' (its start pose; "fit": its own map\'s best fit to the ground truth)' if fit_errs else ''))
     ok = True
     for r in robots:
         d = (rec.get('robots', {}).get(r) or {}).get('diagnostics', {})
@@ -172,8 +192,10 @@ def report(truth_path: str, record_dir: str, single_path: Optional[str], png: Op
             ok = False
             print('  %-6s NOT merged: %s' % (r, d.get('message', 'no TF')))
         else:
-            print('  %-6s error %.3f m %.2f deg   inlier ratio %s  agreement %s  via %s' % (
-                r, e[0], e[1], d.get('inlier_ratio', '-'), d.get('agreement', '-'), d.get('chain', d.get('linked_to', '-'))))
+            fe = fit_errs.get(r)
+            print('  %-6s error %.3f m %.2f deg%s   inlier ratio %s  agreement %s  via %s' % (
+                r, e[0], e[1], '' if fe is None else ' (fit: %.3f m %.2f deg)' % fe,
+                d.get('inlier_ratio', '-'), d.get('agreement', '-'), d.get('chain', d.get('linked_to', '-'))))
     if png:
         traj = {}
         if T_gt_merged is not None:
