@@ -12,10 +12,19 @@ APT_PKGS := python3-rospy python3-tf2-ros python3-nav-msgs python3-rostest pytho
   python3-roslaunch python3-rostopic python3-map-msgs python3-diagnostic-msgs python3-std-srvs \
   python3-geometry-msgs python3-sensor-msgs python3-catkin-pkg python3-setuptools \
   catkin ros-core-dev g++ python3-opencv python3-numpy python3-scipy python3-yaml \
-  python3-pytest python3-matplotlib python3-open3d python3-tf2-msgs
-ROS_ENV := source $(SETUP) && export ROS_HOME=$(WS)/ros_home ROS_LOG_DIR=$(WS)/ros_home/log
+  python3-pytest python3-matplotlib python3-open3d python3-tf2-msgs \
+  rosbash python3-rosparam python3-rosnode python3-rosgraph python3-rospkg python3-roslib
+# gmapping (the real slam_gmapping node): the system's when ROS finds one (Ubuntu + Noetic:
+# ros-noetic-gmapping through rosdep), else built from ../shared/gmapping (unmodified upstream
+# source) into GMAPPING_WS and overlaid on the workspace, else none (`make gmapping` says so).
+GMAPPING_SRC := $(abspath $(CURDIR)/../shared/gmapping)
+GMAPPING_WS  ?= $(WS)/gmapping_ws
+# Tests, demo and bench start private masters on this machine only: every process names itself
+# by the loopback address, so nothing depends on the machine's hostname resolving.
+ROS_ENV := source $(SETUP) && { [ ! -f $(GMAPPING_WS)/devel/setup.bash ] || source $(GMAPPING_WS)/devel/setup.bash --extend; } && export ROS_HOME=$(WS)/ros_home ROS_LOG_DIR=$(WS)/ros_home/log \
+  ROS_IP=127.0.0.1 ROS_MASTER_URI=http://127.0.0.1:11311 && unset ROS_HOSTNAME
 
-.PHONY: deps build test unit demo bench clean lint
+.PHONY: deps build gmapping test unit demo bench clean setup-path lint
 
 deps: $(WS)/.deps-ok
 $(WS)/.deps-ok:
@@ -34,11 +43,18 @@ build: deps
 	  || { tail -40 $(WS)/build.log; exit 1; }
 	@echo "built: $(WS)"
 
+gmapping: build
+	@$(ROS_ENV) && if p=$$(rospack find gmapping 2>/dev/null); then echo "gmapping: $$p"; \
+	elif [ -x $(GMAPPING_SRC)/build.sh ]; then echo "gmapping: not installed: building it from $(GMAPPING_SRC) ..."; \
+	  GMAPPING_WS=$(GMAPPING_WS) $(GMAPPING_SRC)/build.sh >$(WS)/gmapping_build.log 2>&1 \
+	    || { tail -20 $(WS)/gmapping_build.log; exit 1; }; tail -1 $(WS)/gmapping_build.log; \
+	else echo "gmapping: none (no ROS package gmapping, no ../shared/gmapping): the demo replays maps real gmapping made earlier, the gmapping tests skip"; fi
+
 unit: build
 	@$(ROS_ENV) && cd $(CURDIR) && python3 -m pytest -q test/unit
 
 # rostest exits 0 even when a test fails (seen with Debian's ros_comm 1.15): judge by RESULT.
-test: build
+test: build gmapping
 	@$(ROS_ENV) && cd $(CURDIR) && rc=0; \
 	python3 -m pytest -q test/unit || rc=1; \
 	for t in test/ros/*.test; do \
@@ -48,7 +64,7 @@ test: build
 	  [ $$r -eq 0 ] || { rc=1; tail -60 $(WS)/rostest.log; }; done; \
 	exit $$rc
 
-demo: build
+demo: build gmapping
 	@$(ROS_ENV) && cd $(CURDIR) && scripts/run_demo
 
 clean:
@@ -60,13 +76,18 @@ bench: build
 	@$(ROS_ENV) && cd $(CURDIR) && (dpkg-query -W python3-matplotlib >/dev/null 2>&1 || apt-get install -y -q python3-matplotlib >/dev/null) && \
 	python3 bench/run_bench.py && python3 bench/live_gap.py
 
-# Lint: ruff (pycodestyle, pyflakes, bugbear, isort; ruff.toml) over src, the Python scripts,
+# The workspace's setup.bash, for the README's `rosrun multi_map_merge ...` commands in a shell:
+#   make build && source "$(make -s setup-path)"
+setup-path:
+	@echo $(SETUP)
+
+# Lint: ruff (pycodestyle, pyflakes, bugbear, isort; ruff.toml) over src, the Python scripts, tools,
 # test and bench. Pinned, in a venv of its own under the workspace (Debian's python3 has no ruff).
 RUFF_VERSION := 0.6.9
 LINT_PKGS    := python3-venv
 RUFF         := $(WS)/ruff-$(RUFF_VERSION)/bin/ruff
 lint: $(RUFF)
-	@$(RUFF) check --no-cache src scripts test bench
+	@$(RUFF) check --no-cache src scripts test bench tools
 
 $(RUFF):
 	@mkdir -p $(WS)

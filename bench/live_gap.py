@@ -147,8 +147,10 @@ def main():
         paths.append(p)
         cells.append(g.width * g.height)
     port = a.port if port_free(a.port) else free_port()
-    env = dict(ros_env(not a.no_build), ROS_MASTER_URI='http://localhost:%d' % port, ROS_HOME=os.path.join(tmp, 'ros'),
-               ROS_LOG_DIR=os.path.join(tmp, 'ros', 'log'))
+    # a private master on the loopback: works where the machine's own hostname does not resolve
+    env = dict(ros_env(not a.no_build), ROS_MASTER_URI='http://127.0.0.1:%d' % port, ROS_IP='127.0.0.1',
+               ROS_HOME=os.path.join(tmp, 'ros'), ROS_LOG_DIR=os.path.join(tmp, 'ros', 'log'))
+    env.pop('ROS_HOSTNAME', None)
     os.environ.update(env)
     procs = []
 

@@ -1,6 +1,8 @@
 #!/usr/bin/env python3
 """rostest: a generated robots' bag through `roslaunch multi_map_merge bag_replay.launch`
-(real rosbag play --clock, /use_sim_time, the node, tf2), scored against the bag's truth."""
+(real rosbag play --clock, /use_sim_time, the node, tf2), scored against the bag's truth.
+Argument ``--slam``: ``recorded`` (the bag's maps, the default) or ``gmapping`` (one live, real
+slam_gmapping per robot makes the maps from the bag's scans; skipped where ROS has no gmapping)."""
 import math
 import os
 import subprocess
@@ -10,6 +12,7 @@ import unittest
 
 import numpy as np
 import rospkg
+import rospy
 import rostest
 from rostest_helpers import stop_launch
 
@@ -20,12 +23,32 @@ from multi_map_merge.ros.replay import record_replay
 from multi_map_merge.ros.tools import init_node
 
 ROBOTS = ['tb3_0', 'tb3_1', 'tb3_2']
+SLAM = 'recorded'   # --slam on the command line
+# what each mode must reach: transform error (m, deg) of every robot, the merged map's Fitness
+# and inlier RMSE (m) against the ground truth, and the playback rate
+LIMITS = {
+    # the bag's maps drift a little from each robot's start pose (0.4-0.7 deg measured)
+    'recorded': dict(metres=0.10, degrees=1.5, fitness=0.95, rmse=0.06, end=0.3, rate=4),
+    # real gmapping's maps of the LDS-02 scans have thicker walls, and each bends against its
+    # robot's start pose by a few degrees (see docs/measurements.md): looser, but a robot merged
+    # in the wrong place (metres, or a turn) still fails
+    'gmapping': dict(metres=0.25, degrees=6.0, fitness=0.55, rmse=0.07, end=0.5, rate=1.5),
+}
 
 
 class TestBagReplay(unittest.TestCase):
 
     def test_replay_merges_every_robot_where_the_truth_says(self):
-        pkg = rospkg.RosPack().get_path('multi_map_merge')
+        slam = SLAM
+        limit = LIMITS[slam]
+        rp = rospkg.RosPack()
+        pkg = rp.get_path('multi_map_merge')
+        if slam == 'gmapping':
+            try:
+                rp.get_path('gmapping')
+            except rospkg.ResourceNotFound:
+                self.skipTest('no gmapping: ROS has no package gmapping (Ubuntu: ros-noetic-gmapping; '
+                              'Debian: make gmapping builds it from ../shared/gmapping)')
         tmp = tempfile.mkdtemp(prefix='mmm_bag_')
         bag = os.path.join(tmp, 'house3.bag')
         r = subprocess.run([sys.executable, os.path.join(pkg, 'scripts', 'make_robot_bags'), '-o', bag,
@@ -34,7 +57,8 @@ class TestBagReplay(unittest.TestCase):
         self.assertTrue(os.path.getsize(bag) > 1_000_000)
         init_node('test_bag_replay')
         launch = subprocess.Popen(['roslaunch', 'multi_map_merge', 'bag_replay.launch', 'bag:=' + bag,
-                                   'slam:=recorded', 'rviz:=false', 'rate:=4', 'output:=log'],
+                                   'slam:=' + slam, 'rviz:=false', 'rate:=%g' % limit['rate'],
+                                   'robot_count:=%d' % len(ROBOTS), 'output:=log'],
                                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
         try:
             rec = record_replay(ROBOTS, period=0.5, idle=4.0, timeout=200.0)
@@ -56,20 +80,33 @@ class TestBagReplay(unittest.TestCase):
         # the merged map, against the ground truth: the paper's Fitness
         self.assertIsNotNone(rec['map'])
         s = score_map(rec['map'], load_map(truth['world_path']), starts['tb3_0'])
-        print('bag replay: Fitness %.4f, inlier RMSE %.3f m, transform errors %s' % (
-            s.fitness, s.inlier_rmse, ', '.join('%s %.3f m %.2f deg' % (k, *e) for k, e in sorted(errors.items()))))
-        # each robot's SLAM map drifts a little from its start pose (measured: 0.4-0.7 deg here)
+        print('bag replay, slam %s: Fitness %.4f, inlier RMSE %.3f m, transform errors %s' % (
+            slam, s.fitness, s.inlier_rmse,
+            ', '.join('%s %.3f m %.2f deg' % (k, *e) for k, e in sorted(errors.items()))))
+        if slam == 'gmapping':
+            # each robot's own gmapping map aligned alone to the ground truth: how good the
+            # merge's inputs were, and how far the merge is from each map's own best fit
+            own = {}
+            for name in ROBOTS:
+                self.assertIn(name, rec['robot_maps'], '%s: no /%s/map from gmapping' % (name, name))
+                own[name] = score_map(rec['robot_maps'][name], load_map(truth['world_path']), starts[name])
+            fit_errors = transform_errors(est, {k: v.T for k, v in own.items()}, 'tb3_0')
+            print('bag replay, slam gmapping: robots\' own maps Fitness %s; errors against each map\'s best '
+                  'fit: %s' % (', '.join('%.4f' % own[k].fitness for k in ROBOTS),
+                               ', '.join('%s %.3f m %.2f deg' % (k, *e) for k, e in sorted(fit_errors.items()))))
+        self.assertGreater(s.fitness, limit['fitness'])
         for name, (d, a) in errors.items():
-            self.assertLess(d, 0.10, '%s: %.3f m from the truth' % (name, d))
-            self.assertLess(a, 1.5, '%s: %.2f deg from the truth' % (name, a))
-        self.assertGreater(s.fitness, 0.95)
-        self.assertLess(s.inlier_rmse, 0.06)
-        # a trajectory through the merged TF ends where that robot truly ended (within 0.3 m)
+            self.assertLess(d, limit['metres'], '%s: %.3f m from the truth' % (name, d))
+            self.assertLess(a, limit['degrees'], '%s: %.2f deg from the truth' % (name, a))
+        self.assertLess(s.inlier_rmse, limit['rmse'])
+        # a trajectory through the merged TF ends where that robot truly ended
         end = rec['robots']['tb3_1']['trajectory'][-1]
         p = np.linalg.inv(starts['tb3_0']) @ starts['tb3_1'] @ np.array([end[1], end[2], 1.0])
         q = est['tb3_1'] @ np.array([end[1], end[2], 1.0])
-        self.assertLess(math.hypot(*(p[:2] - q[:2])), 0.3)
+        self.assertLess(math.hypot(*(p[:2] - q[:2])), limit['end'])
 
 
 if __name__ == '__main__':
+    argv = rospy.myargv()
+    SLAM = argv[argv.index('--slam') + 1] if '--slam' in argv else 'recorded'
     rostest.rosrun('multi_map_merge', 'bag_replay', TestBagReplay)

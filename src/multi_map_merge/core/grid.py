@@ -5,7 +5,7 @@ grid's origin (lowest y in the map frame) and columns along +x. We never flip ro
 pipeline: feature detection, estimation and compositing all work in this order, so a cell index
 maps to metres by a proper rotation (determinant +1) and a rigid image transform is a rigid
 metric one. The only row flip is at the edge, when a map_server ``.pgm`` (row 0 = top) is read
-or written, and when a picture is drawn for people (see :mod:`multi_map_merge.mapio`).
+or written, and when a picture is drawn for people (see :mod:`multi_map_merge.core.mapio`).
 
 Cell values follow nav_msgs/OccupancyGrid: -1 unknown, 0..100 occupancy probability in percent.
 They are classified with two thresholds (percent, as in map_server's ``free_thresh`` and

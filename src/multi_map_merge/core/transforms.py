@@ -5,7 +5,7 @@ Conventions (used everywhere in the package):
 - Homogeneous 3x3 matrices act on column vectors ``[x, y, 1]``.
 - *Cell coordinates* of a grid are continuous ``(col, row)`` with the centre of cell
   ``data[r, c]`` at ``(c, r)``: OpenCV's pixel-centre convention, in OccupancyGrid row order
-  (row 0 at the origin, no flip; see :mod:`multi_map_merge.grid`).
+  (row 0 at the origin, no flip; see :mod:`multi_map_merge.core.grid`).
 - ``cell_to_metric(grid)`` maps a grid's cell coordinates to metres in its ``frame_id``.
 - An *image transform* ``A`` maps cell coordinates of one grid to cell coordinates of another
   (here: robot map -> reference map). Estimation produces it.

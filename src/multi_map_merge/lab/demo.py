@@ -138,6 +138,21 @@ def report(truth_path: str, record_dir: str, single_path: Optional[str], png: Op
     for name, s in rows:
         print('%-30s %8.4f %10.3f m %10.3f %9.2f m2'
               % (name, s.fitness, s.inlier_rmse, s.coverage, s.wrong_occupied_m2))
+    # each robot's own last map, aligned alone to the truth: what the merge had to work with,
+    # and where that map's frame really sits (a SLAM map bends: its best fit to the world can
+    # differ from the start pose by a few degrees, and merging can only find the best fit)
+    fitted = {}
+    own = []
+    for r in robots:
+        p = os.path.join(record_dir, '%s_map.yaml' % r)
+        if os.path.exists(p):
+            s = score_map(load_map(p), gt, starts[r], max_distance)
+            fitted[r] = s.T
+            own.append(s)
+    if own:
+        print('%-30s %8.4f %10.3f m %10s %9.2f m2' % (
+            'robots\' own maps (mean of %d)' % len(own), float(np.mean([s.fitness for s in own])),
+            float(np.mean([s.inlier_rmse for s in own])), '-', float(np.mean([s.wrong_occupied_m2 for s in own]))))
     print('%-30s %8.4f %10.3f m' % ('paper: multi-robot (4)', *PAPER['multi']))
     print('%-30s %8.4f %10.3f m' % ('paper: single robot', *PAPER['single']))
     est = {}
@@ -147,8 +162,10 @@ def report(truth_path: str, record_dir: str, single_path: Optional[str], png: Op
             est[r] = se2(*tf)
     est.setdefault(ref, np.eye(3))
     errs = transform_errors(est, starts, ref)
+    fit_errs = transform_errors(est, fitted, ref) if ref in fitted else {}
     print()
-    print('every robot\'s map frame in the merged map (TF map -> <robot>/map at the end) against the truth:')
+    print('every robot\'s map frame in the merged map (TF map -> <robot>/map at the end) against the truth'
+          '%s:' % (' (its start pose; "fit": its own map\'s best fit to the ground truth)' if fit_errs else ''))
     ok = True
     for r in robots:
         d = (rec.get('robots', {}).get(r) or {}).get('diagnostics', {})
@@ -159,9 +176,11 @@ def report(truth_path: str, record_dir: str, single_path: Optional[str], png: Op
             ok = False
             print('  %-6s NOT merged: %s' % (r, d.get('message', 'no TF')))
         else:
+            fe = fit_errs.get(r)
             via = d.get('chain', d.get('linked_to', '-'))
-            print('  %-6s error %.3f m %.2f deg   inlier ratio %s  agreement %s  via %s' % (
-                r, e[0], e[1], d.get('inlier_ratio', '-'), d.get('agreement', '-'), via))
+            print('  %-6s error %.3f m %.2f deg%s   inlier ratio %s  agreement %s  via %s' % (
+                r, e[0], e[1], '' if fe is None else ' (fit: %.3f m %.2f deg)' % fe,
+                d.get('inlier_ratio', '-'), d.get('agreement', '-'), via))
     if png:
         traj = {}
         if T_gt_merged is not None:

@@ -26,7 +26,7 @@ Error model (all deterministic for a seed):
   after ``linear_update`` m, ``angular_update`` rad or ``temporal_update`` s, the map published
   every ``map_update_interval`` s. Values as in config/gmapping_lds02.yaml (ROBOTIS' settings).
 
-Units: metres, radians, seconds; grids in OccupancyGrid order (see :mod:`multi_map_merge.grid`).
+Units: metres, radians, seconds; grids in OccupancyGrid order (see :mod:`multi_map_merge.core.grid`).
 """
 from __future__ import annotations
 

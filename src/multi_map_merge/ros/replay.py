@@ -123,15 +123,20 @@ def record_replay(robots: Sequence[str], period: float = 0.5, idle: float = 4.0,
     ``base_footprint`` in its ``<robot>/map`` frame (its trajectory) and that frame in
     ``merged_frame`` (the merged TF). Returns {'map': last merged Grid or None, 'robots': {name:
     {'trajectory': [[t, x, y, yaw] in <robot>/map, ...], 'tf': [x, y, yaw] of <robot>/map in the
-    merged frame, or None, 'diagnostics': {...}}}, 'clock': last /clock seconds}."""
+    merged frame, or None, 'diagnostics': {...}}}, 'robot_maps': {name: the robot's last
+    /<name>/map Grid}, 'clock': last /clock seconds}."""
     from rosgraph_msgs.msg import Clock
-    state: Dict = {'map': None, 'clock': None, 'clock_wall': None, 'diag': {}}
+    state: Dict = {'map': None, 'clock': None, 'clock_wall': None, 'diag': {}, 'robot_maps': {}}
 
-    def on_map(msg):
+    def on_map(msg, robot=None):
         try:
-            state['map'] = grid_from_msg(msg, 10 ** 9)
+            grid = grid_from_msg(msg, 10 ** 9)
         except (GridError, ValueError):
-            pass
+            return
+        if robot is None:
+            state['map'] = grid
+        else:
+            state['robot_maps'][robot] = grid
 
     def on_clock(msg):
         c = msg.clock.to_sec()
@@ -142,6 +147,8 @@ def record_replay(robots: Sequence[str], period: float = 0.5, idle: float = 4.0,
             rospy.Subscriber('/clock', Clock, on_clock, queue_size=10),
             rospy.Subscriber('/diagnostics', DiagnosticArray, diagnostics_by_robot, callback_args=state['diag'],
                              queue_size=10)]
+    subs += [rospy.Subscriber('/%s/map' % r, NumpyGrid, on_map, callback_args=r, queue_size=1, buff_size=2 ** 26)
+             for r in robots]
     buf = tf2_ros.Buffer(cache_time=rospy.Duration(3600.0))
     tf2_ros.TransformListener(buf)
     traj: Dict[str, List] = {r: [] for r in robots}
@@ -172,15 +179,18 @@ def record_replay(robots: Sequence[str], period: float = 0.5, idle: float = 4.0,
                     traj[r].append([t.header.stamp.to_sec()] + p)
     for s in subs:
         s.unregister()
-    return {'map': state['map'], 'clock': state['clock'],
+    return {'map': state['map'], 'clock': state['clock'], 'robot_maps': state['robot_maps'],
             'robots': {r: {'trajectory': traj[r], 'tf': last_tf[r], 'diagnostics': state['diag'].get(r, {})}
                        for r in robots}}
 
 
 def save_record(rec: Dict, out_dir: str) -> bool:
-    """Write a replay's record (see :func:`record_replay`): merged.{yaml,pgm} and
-    record.yaml. False when no merged map was ever received."""
+    """Write a replay's record (see :func:`record_replay`): merged.{yaml,pgm}, each robot's
+    last map as <robot>_map.{yaml,pgm}, and record.yaml. False when no merged map was ever
+    received."""
     os.makedirs(out_dir, exist_ok=True)
+    for robot, grid in (rec.get('robot_maps') or {}).items():
+        save_map(grid, os.path.join(out_dir, '%s_map.yaml' % robot))
     doc = {'clock': rec.get('clock'), 'robots': rec['robots']}
     with open(os.path.join(out_dir, 'record.yaml'), 'w') as f:
         yaml.safe_dump(doc, f, sort_keys=False)
