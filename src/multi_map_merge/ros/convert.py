@@ -27,6 +27,12 @@ def quaternion_yaw(q) -> float:
     return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
 
 
+def set_yaw(q, yaw: float) -> None:
+    """Set a geometry_msgs/Quaternion (x and y left 0) to the rotation of ``yaw`` radians about z."""
+    q.z = math.sin(yaw / 2.0)
+    q.w = math.cos(yaw / 2.0)
+
+
 def grid_from_msg(msg, max_cells: int) -> Grid:
     """Validated Grid from an OccupancyGrid (numpy_msg, or plain as rosbag reads it); raises
     GridError with the reason."""
@@ -61,8 +67,7 @@ def metadata(grid: Grid, stamp: rospy.Time) -> MapMetaData:
     info.resolution = float(grid.resolution)
     info.width, info.height = grid.width, grid.height
     info.origin.position.x, info.origin.position.y = float(grid.origin[0]), float(grid.origin[1])
-    info.origin.orientation.z = math.sin(grid.origin[2] / 2.0)
-    info.origin.orientation.w = math.cos(grid.origin[2] / 2.0)
+    set_yaw(info.origin.orientation, grid.origin[2])
     return info
 
 
@@ -74,6 +79,5 @@ def transform_msg(T: np.ndarray, parent: str, child: str, stamp: rospy.Time) -> 
     t.header.frame_id = parent
     t.child_frame_id = child
     t.transform.translation.x, t.transform.translation.y = x, y
-    t.transform.rotation.z = math.sin(yaw / 2.0)
-    t.transform.rotation.w = math.cos(yaw / 2.0)
+    set_yaw(t.transform.rotation, yaw)
     return t

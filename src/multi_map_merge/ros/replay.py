@@ -2,7 +2,6 @@
 read back, and a replay through the merger recorded (trajectories through the merged TF)."""
 from __future__ import annotations
 
-import math
 import os
 import sys
 import time
@@ -18,7 +17,7 @@ from rospy.numpy_msg import numpy_msg
 from ..core.grid import Grid, GridError
 from ..core.mapio import save_map
 from ..core.transforms import compose, relative, se2
-from .convert import NumpyGrid, grid_from_msg, grid_to_msg, quaternion_yaw, transform_msg
+from .convert import NumpyGrid, grid_from_msg, grid_to_msg, quaternion_yaw, set_yaw, transform_msg
 from .diagnostics import diagnostics_by_robot
 
 BAG_EPOCH = 1_600_000_000.0   # bag time of a simulated run's t = 0 (fixed: bags are reproducible)
@@ -64,7 +63,7 @@ def write_robot_bag(path: str, runs, clock_rate: float = 10.0) -> Dict[str, int]
             od.header.stamp, od.header.frame_id, od.child_frame_id = st, f_odom, f_base
             x, y, yaw = run.odom[i]
             od.pose.pose.position.x, od.pose.pose.position.y = x, y
-            od.pose.pose.orientation.z, od.pose.pose.orientation.w = math.sin(yaw / 2), math.cos(yaw / 2)
+            set_yaw(od.pose.pose.orientation, yaw)
             if i > 0:
                 od.twist.twist.linear.x, od.twist.twist.angular.z = v[i - 1], w[i - 1]
             add(t, '/%s/odom' % n, od)
