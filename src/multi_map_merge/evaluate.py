@@ -260,6 +260,26 @@ def score_map(grid: Grid, truth: Grid, T_init: Optional[np.ndarray] = None,
                     max_distance=float(max_distance), T_init=T_init, note=note)
 
 
+def best_fit_score(grid: Grid, truth: Grid, max_distance: float = DEFAULT_MAX_DISTANCE,
+                   headings: int = 8) -> MapScore:
+    """``score_map`` with no coarse pose at all (e.g. a floor plan that no robot's start is
+    known in): ICP from ``headings`` evenly spaced rotations, each with the map's occupied
+    centroid on the truth's, and the best Fitness kept."""
+    src, dst = occupied_points(grid), occupied_points(truth)
+    if len(src) == 0 or len(dst) == 0:
+        return score_map(grid, truth, np.eye(3), max_distance)    # raises the clear error
+    cs, cd = src.mean(axis=0), dst.mean(axis=0)
+    best = None
+    for k in range(headings):
+        yaw = 2.0 * math.pi * k / headings
+        R = se2(0.0, 0.0, yaw)[:2, :2]
+        t = cd - R @ cs
+        s = score_map(grid, truth, se2(float(t[0]), float(t[1]), yaw), max_distance)
+        if best is None or s.fitness > best.fitness:
+            best = s
+    return best
+
+
 def transform_errors(estimated: Dict[str, np.ndarray], starts: Dict[str, np.ndarray],
                      reference: str) -> Dict[str, Optional[Tuple[float, float]]]:
     """Each robot's estimated transform against the truth.

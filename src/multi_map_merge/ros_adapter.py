@@ -639,14 +639,17 @@ def read_bag_maps(path: str, max_cells: int = 100_000_000) -> Dict[str, List[Gri
 
 
 def record_replay(robots: Sequence[str], period: float = 0.5, idle: float = 4.0,
-                  timeout: float = 3600.0, merged_frame: str = 'map', start_timeout: float = 60.0) -> Dict:
+                  timeout: float = 3600.0, merged_frame: str = 'map', start_timeout: float = 60.0,
+                  base_frame: str = 'base_footprint') -> Dict:
     """Watch a replay through the merger until the bag ends (``/clock`` still for ``idle``
     wall seconds after it moved, or no ``/clock`` at all within ``start_timeout``, or
     ``timeout``, or shutdown). Every ``period`` wall seconds it looks up, by tf2, each robot's
-    ``base_footprint`` in its ``<robot>/map`` frame (its trajectory) and that frame in
-    ``merged_frame`` (the merged TF). Returns {'map': last merged Grid or None, 'robots': {name:
-    {'trajectory': [[t, x, y, yaw] in <robot>/map, ...], 'tf': [x, y, yaw] of <robot>/map in the
-    merged frame, or None, 'diagnostics': {...}}}, 'robot_maps': {name: the robot's last
+    ``<robot>/<base_frame>`` in its ``<robot>/map`` frame (its trajectory), that map frame in
+    ``merged_frame`` (the merged TF), and the base frame in ``merged_frame`` (through both).
+    Returns {'map': last merged Grid or None, 'robots': {name: {'trajectory': [[t, x, y, yaw] in
+    <robot>/map, ...], 'tf': [x, y, yaw] of <robot>/map in the merged frame, or None, 'base':
+    [x, y, yaw] of its base frame in the merged frame, or None, 'diagnostics': {...}}},
+    'robot_maps': {name: the robot's last
     /<name>/map Grid}, 'clock': last /clock seconds}."""
     from rosgraph_msgs.msg import Clock
     state: Dict = {'map': None, 'clock': None, 'clock_wall': None, 'diag': {}, 'robot_maps': {}}
@@ -676,6 +679,7 @@ def record_replay(robots: Sequence[str], period: float = 0.5, idle: float = 4.0,
     tf2_ros.TransformListener(buf)
     traj: Dict[str, List] = {r: [] for r in robots}
     last_tf: Dict[str, Optional[List[float]]] = {r: None for r in robots}
+    last_base: Dict[str, Optional[List[float]]] = {r: None for r in robots}
     end = time.time() + timeout
     while not rospy.is_shutdown() and time.time() < end:
         time.sleep(period)              # wall time: the sim clock stops when the bag ends
@@ -687,8 +691,9 @@ def record_replay(robots: Sequence[str], period: float = 0.5, idle: float = 4.0,
         for r in robots:
             # the trajectory in the robot's own map frame (there from its first scan on), and
             # where the merger puts that frame: together, the trajectory through the merged TF
-            for parent, child, store in (('%s/map' % r, '%s/base_footprint' % r, 'traj'),
-                                         (merged_frame, '%s/map' % r, 'tf')):
+            for parent, child, store in (('%s/map' % r, '%s/%s' % (r, base_frame), 'traj'),
+                                         (merged_frame, '%s/map' % r, 'tf'),
+                                         (merged_frame, '%s/%s' % (r, base_frame), 'base')):
                 try:
                     t = buf.lookup_transform(parent, child, rospy.Time(0))
                 except (tf2_ros.LookupException, tf2_ros.ConnectivityException,
@@ -698,12 +703,15 @@ def record_replay(robots: Sequence[str], period: float = 0.5, idle: float = 4.0,
                 p = [float(tr.translation.x), float(tr.translation.y), float(quaternion_yaw(tr.rotation))]
                 if store == 'tf':
                     last_tf[r] = p
+                elif store == 'base':
+                    last_base[r] = p
                 elif not traj[r] or traj[r][-1][0] != t.header.stamp.to_sec():
                     traj[r].append([t.header.stamp.to_sec()] + p)
     for s in subs:
         s.unregister()
     return {'map': state['map'], 'clock': state['clock'], 'robot_maps': state['robot_maps'],
-            'robots': {r: {'trajectory': traj[r], 'tf': last_tf[r], 'diagnostics': state['diag'].get(r, {})}
+            'robots': {r: {'trajectory': traj[r], 'tf': last_tf[r], 'base': last_base[r],
+                           'diagnostics': state['diag'].get(r, {})}
                        for r in robots}}
 
 
@@ -730,4 +738,55 @@ def run_tf_relay(src: str = '/tf_bag', dst: str = '/tf', drop_parent: str = '*/m
             pub.publish(TFMessage(keep))
 
     rospy.Subscriber(src, TFMessage, on_tf, queue_size=100)
+    rospy.spin()
+
+
+def bag_start(path: str) -> float:
+    """Bag time (s) of a bag's first message."""
+    import rosbag
+    with rosbag.Bag(path) as bag:
+        return bag.get_start_time()
+
+
+def run_frame_prefix_relay(prefix: str, time_offset: float) -> None:
+    """One robot of a team made of single-robot bags (each names its frames ``odom``,
+    ``base_link``, ``laser`` on the one ``/tf``): republish ``scan_raw``, ``odom_raw`` and
+    ``tf_raw`` (relative to the node's namespace) as ``scan``, ``odom`` and ``/tf`` with every
+    frame id prefixed (``<prefix>/odom`` ...) and every stamp moved by ``time_offset`` seconds,
+    so that runs recorded minutes apart play at once under one ``/clock``."""
+    from nav_msgs.msg import Odometry
+    from sensor_msgs.msg import LaserScan
+    from tf2_msgs.msg import TFMessage
+    shift = rospy.Duration.from_sec(time_offset)
+
+    def frame(f: str) -> str:
+        return '%s/%s' % (prefix, f.lstrip('/')) if f else f
+
+    def moved(header) -> None:
+        header.stamp = header.stamp + shift
+        header.frame_id = frame(header.frame_id)
+
+    pubs = {}
+
+    def relay(name, msg_type, fix, out=None):
+        pubs[name] = rospy.Publisher(out or name, msg_type, queue_size=50)
+
+        def on_msg(msg):
+            fix(msg)
+            pubs[name].publish(msg)
+        rospy.Subscriber(name + '_raw', msg_type, on_msg, queue_size=50)
+
+    def fix_odom(msg):
+        moved(msg.header)
+        msg.child_frame_id = frame(msg.child_frame_id)
+
+    def fix_tf(msg):
+        for t in msg.transforms:
+            moved(t.header)
+            t.child_frame_id = frame(t.child_frame_id)
+
+    relay('scan', LaserScan, lambda m: moved(m.header))
+    relay('odom', Odometry, fix_odom)
+    relay('tf', TFMessage, fix_tf, '/tf')
+    rospy.loginfo('frame_prefix_relay: frames under %s/, stamps %+.3f s', prefix, time_offset)
     rospy.spin()
