@@ -198,6 +198,7 @@ def test_isr_small_live_orders_never_end_on_a_look_alike(shared_data):
     the merger once ended 1.6-2.3 m off; it must end on a placement the last grids agree
     with."""
     import random
+    pytest.importorskip('rosbag')        # the bags are read with ROS's rosbag API
     from multi_map_merge.config import MergeConfig
     from multi_map_merge.ros_adapter import read_bag_maps
     bags = [os.path.join(shared_data, 'mrgs/bags_gmapping/isr_small_gmapping_%d.bag' % k) for k in (1, 2, 3)]
