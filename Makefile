@@ -24,7 +24,7 @@ GMAPPING_WS  ?= $(WS)/gmapping_ws
 ROS_ENV := source $(SETUP) && { [ ! -f $(GMAPPING_WS)/devel/setup.bash ] || source $(GMAPPING_WS)/devel/setup.bash --extend; } && export ROS_HOME=$(WS)/ros_home ROS_LOG_DIR=$(WS)/ros_home/log \
   ROS_IP=127.0.0.1 ROS_MASTER_URI=http://127.0.0.1:11311 && unset ROS_HOSTNAME
 
-.PHONY: deps build gmapping test unit demo bench clean setup-path lint
+.PHONY: deps build gmapping test unit demo bench clean setup-path test-focal lint
 
 deps: $(WS)/.deps-ok
 $(WS)/.deps-ok:
@@ -80,6 +80,32 @@ bench: build
 #   make build && source "$(make -s setup-path)"
 setup-path:
 	@echo $(SETUP)
+
+# Our users' stack, Ubuntu 20.04 + ROS Noetic: Python 3.8, numpy 1.17.4, OpenCV 4.2.0, scipy 1.3.3
+# (PyPI builds of those versions, pinned in test/requirements-focal.txt) in a venv beside the
+# workspace, running the unit tests there. No ROS in that venv: tests that need rospy, rosbag,
+# roslaunch or a sourced workspace skip, and so do those needing Open3D (not packaged for 20.04).
+# Where no Python 3.8 exists it says so and exits 0 (skipped). FOCAL_PY=/path/to/python3.8 picks one.
+FOCAL_PY   ?= $(firstword $(wildcard $(HOME)/.pyenv/versions/3.8.*/bin/python3.8 /root/.pyenv/versions/3.8.*/bin/python3.8) $(shell command -v python3.8 2>/dev/null))
+FOCAL_VENV := $(WS)/venv-focal
+FOCAL_REQ  := test/requirements-focal.txt
+
+test-focal:
+	@py='$(FOCAL_PY)'; \
+	if [ -z "$$py" ] || ! "$$py" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 8))' 2>/dev/null; then \
+	  echo "test-focal: skipped: no Python 3.8 on this machine (looked in ~/.pyenv/versions/3.8.* and for python3.8 on PATH$${py:+; $$py is no Python 3.8})"; exit 0; fi; \
+	stamp=$(FOCAL_VENV)/.ok-$$( (echo "$$py"; cat $(FOCAL_REQ)) | md5sum | cut -c1-8); \
+	if [ ! -f "$$stamp" ]; then \
+	  echo "test-focal: making $(FOCAL_VENV) with $$py from $(FOCAL_REQ) (PyPI) ..."; \
+	  rm -rf $(FOCAL_VENV) && mkdir -p $(WS) && "$$py" -m venv $(FOCAL_VENV) \
+	  && $(FOCAL_VENV)/bin/python -m pip install -q --only-binary numpy,scipy,opencv-python-headless \
+	       -r $(FOCAL_REQ) >$(WS)/venv-focal.log 2>&1 \
+	  || { tail -20 $(WS)/venv-focal.log; echo "test-focal: the venv could not be made (log: $(WS)/venv-focal.log)"; exit 1; }; \
+	  touch "$$stamp"; fi; \
+	cd $(CURDIR) && env -u PYTHONPATH -u ROS_PACKAGE_PATH -u ROS_DISTRO -u ROS_ROOT -u CMAKE_PREFIX_PATH \
+	  $(FOCAL_VENV)/bin/python -c 'import sys, numpy, cv2, scipy, yaml; print("test-focal: Python %s, numpy %s, OpenCV %s, scipy %s, PyYAML %s" % (sys.version.split()[0], numpy.__version__, cv2.__version__, scipy.__version__, yaml.__version__))' \
+	&& env -u PYTHONPATH -u ROS_PACKAGE_PATH -u ROS_DISTRO -u ROS_ROOT -u CMAKE_PREFIX_PATH \
+	  $(FOCAL_VENV)/bin/python -m pytest -q -rs -p no:cacheprovider test/unit
 
 # Lint: ruff (pycodestyle, pyflakes, bugbear, isort; ruff.toml) over src, the Python scripts, tools,
 # test and bench. Pinned, in a venv of its own under the workspace (Debian's python3 has no ruff).

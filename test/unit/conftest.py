@@ -26,6 +26,14 @@ def shared_data():
     return SHARED
 
 
+@pytest.fixture
+def open3d():
+    """Open3D, or skip: evaluation's ICP (Fitness, inlier RMSE) needs it, and Ubuntu 20.04 does
+    not package it (an optional dependency there: pip3 install open3d, rosdep python3-open3d-pip)."""
+    return pytest.importorskip('open3d', reason='Open3D is not installed (optional: evaluation '
+                                                'only; pip3 install open3d, Debian python3-open3d)')
+
+
 def pose_error(T_est, T_true):
     """(metres, degrees) between two 3x3 poses."""
     d, a = pose_distance(T_est, T_true)

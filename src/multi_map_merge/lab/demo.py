@@ -64,7 +64,8 @@ def _to_pixels(pts_xy: np.ndarray, dst: Grid) -> np.ndarray:
 
 
 def figure(truth: Grid, panels: Sequence[Tuple[str, Optional[Grid]]],
-           trajectories: Dict[str, np.ndarray], path: str, title: str = '') -> None:
+           trajectories: Dict[str, np.ndarray], path: str, title: str = '',
+           truth_label: str = 'ground truth') -> None:
     """Ground truth and the maps (already on the truth's lattice) side by side, then the last
     map with each trajectory (N x 2 metres in the truth's frame) drawn on it."""
     def label(img, text):
@@ -73,7 +74,7 @@ def figure(truth: Grid, panels: Sequence[Tuple[str, Optional[Grid]]],
         cv2.putText(out, text, (4, 19), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
         return out
 
-    imgs = [label(_image(truth), 'ground truth')]
+    imgs = [label(_image(truth), truth_label)]
     for name, g in panels:
         imgs.append(label(_image(g) if g is not None else np.full(imgs[0].shape[:2] + (3,), 200, np.uint8)[28:],
                           name))
@@ -194,6 +195,61 @@ def report(truth_path: str, record_dir: str, single_path: Optional[str], png: Op
     return 0 if ok else 1
 
 
+def team_report(record_dir: str, floor_plan_path: Optional[str], png: Optional[str], title: str = '',
+                max_distance: float = 0.1) -> int:
+    """A team of real robots with no ground-truth poses (e.g. the mrgs raw bags through live
+    gmapping): whether each robot merged, how well each overlapping pair of their last maps
+    agrees under the live TF, and, with a floor plan, the merged map's and each robot's own
+    map's best fit to it (:func:`evaluate.best_fit_score`). 0 when every robot merged."""
+    from ..core.verify import agreement
+    from .evaluate import best_fit_score
+    with open(os.path.join(record_dir, 'record.yaml')) as f:
+        rec = yaml.safe_load(f)
+    robots = sorted(rec.get('robots', {}))
+    maps = {r: load_map(os.path.join(record_dir, '%s_map.yaml' % r)) for r in robots
+            if os.path.exists(os.path.join(record_dir, '%s_map.yaml' % r))}
+    merged_path = os.path.join(record_dir, 'merged.yaml')
+    merged = load_map(merged_path) if os.path.exists(merged_path) else None
+    print()
+    print(title or 'A team of real robots through live gmapping')
+    ok = True
+    tf = {}
+    for r in robots:
+        got = rec['robots'][r] or {}
+        d = got.get('diagnostics', {})
+        if got.get('tf') is not None:
+            tf[r] = se2(*got['tf'])
+        merged_r = d.get('merged') == 'true' or d.get('reference') == 'true' or (got.get('tf') == [0.0, 0.0, 0.0])
+        ok &= merged_r and r in tf
+        print('  %-6s %s' % (r, d.get('message', 'no diagnostics') if r in tf else 'NOT merged: %s'
+                             % d.get('message', 'no TF')))
+    for i, a in enumerate(robots):
+        for b in robots[i + 1:]:
+            if a in tf and b in tf and a in maps and b in maps:
+                ga, gb = maps[a], maps[b]
+                A = pose_to_image(inverse(tf[a]) @ tf[b], ga.resolution, ga.origin, gb.resolution, gb.origin)
+                ag, overlap = agreement(ga.levels(), gb.levels(), A, 2)
+                print('  %s-%s: their last maps agree %.3f under the live TF (%d cells known in both)'
+                      % (a, b, ag, overlap))
+    panels: List[Tuple[str, Optional[Grid]]] = []
+    if floor_plan_path and merged is not None:
+        plan = load_map(floor_plan_path)
+        print('against the floor plan %s (best ICP fit of the occupied cells, max correspondence %.2f m):'
+              % (os.path.basename(floor_plan_path), max_distance))
+        h = '  %-28s %8s %12s %10s %12s' % ('', 'Fitness', 'inlier RMSE', 'coverage', 'wrong occ.')
+        print(h)
+        for name, g in [('merged (%d robots)' % len(robots), merged)] + [('%s alone' % r, maps[r]) for r in robots
+                                                                         if r in maps]:
+            sc = best_fit_score(g, plan, max_distance, headings=6)
+            print('  %-28s %8.4f %10.3f m %10.3f %9.2f m2' % (name, sc.fitness, sc.inlier_rmse, sc.coverage,
+                                                             sc.wrong_occupied_m2))
+            panels.append((name, warp_to(g, sc.T, plan)))
+        if png:
+            figure(plan, panels[:1], {}, png, title, truth_label='floor plan')
+            print('wrote %s' % png)
+    return 0 if ok else 1
+
+
 def _main(argv: Optional[List[str]] = None) -> int:
     ap = argparse.ArgumentParser(prog='python3 -m multi_map_merge.lab.demo')
     sub = ap.add_subparsers(dest='cmd', required=True)
@@ -208,7 +264,15 @@ def _main(argv: Optional[List[str]] = None) -> int:
     r.add_argument('--png')
     r.add_argument('--title', default='')
     r.add_argument('--max-distance', type=float, default=0.1)
+    t = sub.add_parser('team-report')
+    t.add_argument('--record', required=True)
+    t.add_argument('--floor-plan')
+    t.add_argument('--png')
+    t.add_argument('--title', default='')
+    t.add_argument('--max-distance', type=float, default=0.1)
     a = ap.parse_args(argv)
+    if a.cmd == 'team-report':
+        return team_report(a.record, a.floor_plan, a.png, a.title, a.max_distance)
     if a.cmd == 'config':
         write_config(a.base, a.out, {k: yaml.safe_load(v) for k, v in (o.split('=', 1) for o in a.overrides)})
         return 0

@@ -14,7 +14,10 @@
 The paper reports 0.9105 / 0.076 m for its four-robot merged map and 0.7024 / 0.085 m for a
 single robot that explored alone (its drift drew walls beside walls).
 
-We compute the same with Open3D (Debian's ``python3-open3d``): point-to-point ICP of the
+We compute the same with Open3D (Debian's ``python3-open3d``; on Ubuntu 20.04, which does not
+package it, ``pip3 install open3d``, rosdep key ``python3-open3d-pip``; the rest of the package
+runs without it, and scoring without it raises :class:`Open3DMissing` naming what to install,
+``evaluate_map`` exits 2 with that message): point-to-point ICP of the
 centres of occupied cells as 3D points with z = 0, the map as the source, the ground truth as
 the target, ``max_correspondence_distance`` = **0.10 m** by default. That is two cells at
 0.05 m: it tolerates rasterisation (a wall drawn one cell off, 0.05 m, or one cell off
@@ -67,6 +70,22 @@ from ..core.transforms import cell_to_metric, inverse, pose_distance, se2, xyyaw
 DEFAULT_MAX_DISTANCE = 0.10          # m: two cells at 0.05 m (see the module docstring)
 ICP_STAGES = (8.0, 4.0, 2.0, 1.0)    # correspondence distances of the ICP runs, x max_distance
 ICP_ITERATIONS = 100                 # at most, per run (Open3D's default is 30)
+OPEN3D_MISSING = ('Open3D is not installed; scoring a map (ICP Fitness, inlier RMSE) needs it: '
+                  'pip3 install --user open3d (rosdep key python3-open3d-pip; Debian 12: '
+                  'apt install python3-open3d)')
+
+
+class Open3DMissing(ImportError):
+    """Open3D cannot be imported: the message says what to install (an optional dependency)."""
+
+
+def open3d():
+    """The ``open3d`` module, or :class:`Open3DMissing` naming what to install."""
+    try:
+        import open3d as o3d
+    except ImportError as e:
+        raise Open3DMissing(OPEN3D_MISSING) from e
+    return o3d
 
 
 @dataclass
@@ -162,7 +181,7 @@ def icp(src: np.ndarray, dst: np.ndarray, T0: np.ndarray, max_distance: float,
     local optimum than the one next to ``T0``. Returns the final pose of the source's frame in
     the target's frame, planar (x, y, yaw).
     """
-    import open3d as o3d
+    o3d = open3d()
     reg = o3d.pipelines.registration
     P = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.c_[src, np.zeros(len(src))]))
     Q = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.c_[dst, np.zeros(len(dst))]))
@@ -207,7 +226,8 @@ def score_map(grid: Grid, truth: Grid, T_init: Optional[np.ndarray] = None,
         stages: coarse-to-fine correspondence distances, multiples of ``max_distance``.
     Raises:
         GridError (a ValueError) when the map or the truth has no occupied cell;
-        ValueError for a non-positive ``max_distance`` or a ``T_init`` that is not a finite 3x3.
+        ValueError for a non-positive ``max_distance`` or a ``T_init`` that is not a finite 3x3;
+        Open3DMissing (an ImportError) when Open3D is not installed.
     """
     if not (isinstance(max_distance, (int, float)) and math.isfinite(max_distance) and max_distance > 0):
         raise ValueError('max_distance must be a positive number of metres, got %r' % (max_distance,))
@@ -226,6 +246,7 @@ def score_map(grid: Grid, truth: Grid, T_init: Optional[np.ndarray] = None,
         T_init = se2(*xyyaw(T_init))    # rigid, whatever rounding it carried
         source = 'given'
     else:
+        open3d()                        # missing: say so before the coarse pose's estimation
         T_init, note = coarse_pose(grid, truth)
         source = 'merger'
         if T_init is None:
@@ -259,6 +280,26 @@ def score_map(grid: Grid, truth: Grid, T_init: Optional[np.ndarray] = None,
                     correction=xyyaw(inverse(T_init) @ T), init_source=source,
                     occupied_points=int(len(src)), truth_points=int(len(dst)),
                     max_distance=float(max_distance), T_init=T_init, note=note)
+
+
+def best_fit_score(grid: Grid, truth: Grid, max_distance: float = DEFAULT_MAX_DISTANCE,
+                   headings: int = 8) -> MapScore:
+    """``score_map`` with no coarse pose at all (e.g. a floor plan that no robot's start is
+    known in): ICP from ``headings`` evenly spaced rotations, each with the map's occupied
+    centroid on the truth's, and the best Fitness kept."""
+    src, dst = occupied_points(grid), occupied_points(truth)
+    if len(src) == 0 or len(dst) == 0:
+        return score_map(grid, truth, np.eye(3), max_distance)    # raises the clear error
+    cs, cd = src.mean(axis=0), dst.mean(axis=0)
+    best = None
+    for k in range(headings):
+        yaw = 2.0 * math.pi * k / headings
+        R = se2(0.0, 0.0, yaw)[:2, :2]
+        t = cd - R @ cs
+        s = score_map(grid, truth, se2(float(t[0]), float(t[1]), yaw), max_distance)
+        if best is None or s.fitness > best.fitness:
+            best = s
+    return best
 
 
 def transform_errors(estimated: Dict[str, np.ndarray], starts: Dict[str, np.ndarray],
@@ -367,7 +408,8 @@ def main(argv: Optional[List[str]] = None) -> int:
     """``evaluate_map MAP.yaml GROUND_TRUTH.yaml [--max-distance 0.1] [--init X Y YAW]
     [--truth NAME.truth.yaml [--robot NAME]] [--transforms T.yaml] [--json out.json]``.
 
-    Exit status 0 scored, 2 bad arguments or a bad input file (the message names it)."""
+    Exit status 0 scored, 2 bad arguments, a bad input file (the message names it) or no Open3D
+    (the message says what to install)."""
     import argparse
     import json
     import sys
@@ -433,6 +475,8 @@ def main(argv: Optional[List[str]] = None) -> int:
         s = score_map(grid, gt, T0, a.max_distance)
     except GridError as e:
         return fail('%s vs %s: %s' % (a.map, a.ground_truth, e))
+    except Open3DMissing as e:
+        return fail(str(e))
 
     x, y, yaw = xyyaw(s.T)
     cx, cy, cyaw = s.correction

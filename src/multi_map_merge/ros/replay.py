@@ -115,14 +115,17 @@ def read_bag_maps(path: str, max_cells: int = 100_000_000) -> Dict[str, List[Gri
 
 
 def record_replay(robots: Sequence[str], period: float = 0.5, idle: float = 4.0,
-                  timeout: float = 3600.0, merged_frame: str = 'map', start_timeout: float = 60.0) -> Dict:
+                  timeout: float = 3600.0, merged_frame: str = 'map', start_timeout: float = 60.0,
+                  base_frame: str = 'base_footprint') -> Dict:
     """Watch a replay through the merger until the bag ends (``/clock`` still for ``idle``
     wall seconds after it moved, or no ``/clock`` at all within ``start_timeout``, or
     ``timeout``, or shutdown). Every ``period`` wall seconds it looks up, by tf2, each robot's
-    ``base_footprint`` in its ``<robot>/map`` frame (its trajectory) and that frame in
-    ``merged_frame`` (the merged TF). Returns {'map': last merged Grid or None, 'robots': {name:
-    {'trajectory': [[t, x, y, yaw] in <robot>/map, ...], 'tf': [x, y, yaw] of <robot>/map in the
-    merged frame, or None, 'diagnostics': {...}}}, 'robot_maps': {name: the robot's last
+    ``<robot>/<base_frame>`` in its ``<robot>/map`` frame (its trajectory), that map frame in
+    ``merged_frame`` (the merged TF), and the base frame in ``merged_frame`` (through both).
+    Returns {'map': last merged Grid or None, 'robots': {name: {'trajectory': [[t, x, y, yaw] in
+    <robot>/map, ...], 'tf': [x, y, yaw] of <robot>/map in the merged frame, or None, 'base':
+    [x, y, yaw] of its base frame in the merged frame, or None, 'diagnostics': {...}}},
+    'robot_maps': {name: the robot's last
     /<name>/map Grid}, 'clock': last /clock seconds}."""
     from rosgraph_msgs.msg import Clock
     state: Dict = {'map': None, 'clock': None, 'clock_wall': None, 'diag': {}, 'robot_maps': {}}
@@ -152,6 +155,7 @@ def record_replay(robots: Sequence[str], period: float = 0.5, idle: float = 4.0,
     tf2_ros.TransformListener(buf)
     traj: Dict[str, List] = {r: [] for r in robots}
     last_tf: Dict[str, Optional[List[float]]] = {r: None for r in robots}
+    last_base: Dict[str, Optional[List[float]]] = {r: None for r in robots}
     end = time.time() + timeout
     while not rospy.is_shutdown() and time.time() < end:
         time.sleep(period)              # wall time: the sim clock stops when the bag ends
@@ -163,8 +167,9 @@ def record_replay(robots: Sequence[str], period: float = 0.5, idle: float = 4.0,
         for r in robots:
             # the trajectory in the robot's own map frame (there from its first scan on), and
             # where the merger puts that frame: together, the trajectory through the merged TF
-            for parent, child, store in (('%s/map' % r, '%s/base_footprint' % r, 'traj'),
-                                         (merged_frame, '%s/map' % r, 'tf')):
+            for parent, child, store in (('%s/map' % r, '%s/%s' % (r, base_frame), 'traj'),
+                                         (merged_frame, '%s/map' % r, 'tf'),
+                                         (merged_frame, '%s/%s' % (r, base_frame), 'base')):
                 try:
                     t = buf.lookup_transform(parent, child, rospy.Time(0))
                 except (tf2_ros.LookupException, tf2_ros.ConnectivityException,
@@ -174,13 +179,23 @@ def record_replay(robots: Sequence[str], period: float = 0.5, idle: float = 4.0,
                 p = [float(tr.translation.x), float(tr.translation.y), float(quaternion_yaw(tr.rotation))]
                 if store == 'tf':
                     last_tf[r] = p
+                elif store == 'base':
+                    last_base[r] = p
                 elif not traj[r] or traj[r][-1][0] != t.header.stamp.to_sec():
                     traj[r].append([t.header.stamp.to_sec()] + p)
     for s in subs:
         s.unregister()
     return {'map': state['map'], 'clock': state['clock'], 'robot_maps': state['robot_maps'],
-            'robots': {r: {'trajectory': traj[r], 'tf': last_tf[r], 'diagnostics': state['diag'].get(r, {})}
+            'robots': {r: {'trajectory': traj[r], 'tf': last_tf[r], 'base': last_base[r],
+                           'diagnostics': state['diag'].get(r, {})}
                        for r in robots}}
+
+
+def bag_start(path: str) -> float:
+    """Bag time (s) of a bag's first message."""
+    import rosbag
+    with rosbag.Bag(path) as bag:
+        return bag.get_start_time()
 
 
 def save_record(rec: Dict, out_dir: str) -> bool:
@@ -212,7 +227,8 @@ def record_replay_main(argv: Optional[List[str]] = None) -> int:
     ap.add_argument('--idle', type=float, default=4.0, help='wall seconds of a still /clock that end the recording')
     ap.add_argument('--timeout', type=float, default=1800.0)
     ap.add_argument('--period', type=float, default=0.5, help='wall seconds between TF samples')
+    ap.add_argument('--base-frame', default='base_footprint', help='each robot\'s base frame, without its namespace')
     a = ap.parse_args(rospy.myargv()[1:] if argv is None else argv)
     rospy.init_node('record_replay', anonymous=True)
-    rec = record_replay(a.robots, a.period, a.idle, a.timeout)
+    rec = record_replay(a.robots, a.period, a.idle, a.timeout, base_frame=a.base_frame)
     return 0 if save_record(rec, a.output) else 1

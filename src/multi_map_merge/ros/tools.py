@@ -169,6 +169,50 @@ def run_tf_relay(src: str = '/tf_bag', dst: str = '/tf', drop_parent: str = '*/m
     rospy.spin()
 
 
+def run_frame_prefix_relay(prefix: str, time_offset: float) -> None:
+    """One robot of a team made of single-robot bags (each names its frames ``odom``,
+    ``base_link``, ``laser`` on the one ``/tf``): republish ``scan_raw``, ``odom_raw`` and
+    ``tf_raw`` (relative to the node's namespace) as ``scan``, ``odom`` and ``/tf`` with every
+    frame id prefixed (``<prefix>/odom`` ...) and every stamp moved by ``time_offset`` seconds,
+    so that runs recorded minutes apart play at once under one ``/clock``."""
+    from nav_msgs.msg import Odometry
+    from sensor_msgs.msg import LaserScan
+    from tf2_msgs.msg import TFMessage
+    shift = rospy.Duration.from_sec(time_offset)
+
+    def frame(f: str) -> str:
+        return '%s/%s' % (prefix, f.lstrip('/')) if f else f
+
+    def moved(header) -> None:
+        header.stamp = header.stamp + shift
+        header.frame_id = frame(header.frame_id)
+
+    pubs = {}
+
+    def relay(name, msg_type, fix, out=None):
+        pubs[name] = rospy.Publisher(out or name, msg_type, queue_size=50)
+
+        def on_msg(msg):
+            fix(msg)
+            pubs[name].publish(msg)
+        rospy.Subscriber(name + '_raw', msg_type, on_msg, queue_size=50)
+
+    def fix_odom(msg):
+        moved(msg.header)
+        msg.child_frame_id = frame(msg.child_frame_id)
+
+    def fix_tf(msg):
+        for t in msg.transforms:
+            moved(t.header)
+            t.child_frame_id = frame(t.child_frame_id)
+
+    relay('scan', LaserScan, lambda m: moved(m.header))
+    relay('odom', Odometry, fix_odom)
+    relay('tf', TFMessage, fix_tf, '/tf')
+    rospy.loginfo('frame_prefix_relay: frames under %s/, stamps %+.3f s', prefix, time_offset)
+    rospy.spin()
+
+
 # ---------------------------------------------------------------- the scripts
 def publish_maps_main(argv: Optional[List[str]] = None) -> int:
     """``publish_maps tb3_0:A.yaml tb3_1:B.yaml ... [--steps 4] [--period 2]``: publish saved
@@ -217,4 +261,20 @@ def tf_relay_main() -> int:
     rospy.init_node('tf_relay')
     run_tf_relay(rospy.get_param('~src', '/tf_bag'), rospy.get_param('~dst', '/tf'),
                  rospy.get_param('~drop_parent', '*/map'), rospy.get_param('~drop_child', '*/odom'))
+    return 0
+
+
+def frame_prefix_relay_main() -> int:
+    """``frame_prefix_relay``: one robot of a team of single-robot bags: its scan, odom and tf
+    (played into the namespace as scan_raw, odom_raw, tf_raw) republished with frames prefixed
+    and stamps moved onto the team's clock. Parameters: ~prefix (default: the namespace), ~bag
+    and ~clock_bag (the stamps move by start(clock_bag) - start(bag)) or ~time_offset (s)."""
+    from .replay import bag_start
+    rospy.init_node('frame_prefix_relay')
+    prefix = rospy.get_param('~prefix', rospy.get_namespace().strip('/'))
+    offset = float(rospy.get_param('~time_offset', 0.0))
+    bag, clock_bag = rospy.get_param('~bag', ''), rospy.get_param('~clock_bag', '')
+    if bag and clock_bag:
+        offset = bag_start(clock_bag) - bag_start(bag)
+    run_frame_prefix_relay(prefix, offset)
     return 0

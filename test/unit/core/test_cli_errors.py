@@ -76,10 +76,11 @@ def test_duplicate_stems_and_unknown_reference(tmp_path, capsys, good):
 def test_errors_through_the_script(tmp_path):
     """The installed entry point (scripts/merge_maps) exits 2 too, message on stderr."""
     import subprocess
+    import sys
 
     from conftest import REPO
     env = dict(os.environ, PYTHONPATH=os.path.join(REPO, 'src'))
-    r = subprocess.run(['/usr/bin/python3', os.path.join(REPO, 'scripts', 'merge_maps'),
+    r = subprocess.run([sys.executable, os.path.join(REPO, 'scripts', 'merge_maps'),
                         str(tmp_path / 'gone.yaml'), '-o', str(tmp_path / 'o.yaml')],
                        capture_output=True, text=True, env=env, timeout=60)
     assert r.returncode == 2 and 'gone.yaml' in r.stderr, (r.returncode, r.stderr)

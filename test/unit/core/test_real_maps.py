@@ -189,6 +189,7 @@ def test_isr_small_live_orders_never_end_on_a_look_alike(shared_data):
     with."""
     import random
 
+    pytest.importorskip('rosbag')        # the bags are read with ROS's rosbag API
     from multi_map_merge.core.config import MergeConfig
     from multi_map_merge.ros.replay import read_bag_maps
     bags = [os.path.join(shared_data, 'mrgs/bags_gmapping/isr_small_gmapping_%d.bag' % k) for k in (1, 2, 3)]
@@ -217,27 +218,42 @@ def test_isr_small_live_orders_never_end_on_a_look_alike(shared_data):
             assert frac >= 0.95, (seed, a, b, frac, both)
 
 
-@pytest.mark.parametrize('world, robots, frac, seed', [
-    ('aces', 8, 0.4, 7), ('aces', 6, 0.35, 14), ('belgioioso', 6, 0.35, 3), ('seattle', 6, 0.35, 13)])
+# Windows of look-alike rooms: without the evidence gate a link of 10-20 inliers whose walls
+# agree only in the main (0.91-0.95) puts robots 8-40 m off, on Debian 12's stack (Python 3.11,
+# numpy 1.24, OpenCV 4.6) and on Ubuntu 20.04's (Python 3.8, numpy 1.17, OpenCV 4.2; `make
+# test-focal`) alike. Their wrong links (inliers, agreement): aces 8 (10, 0.949), aces 6
+# (15, 0.930), seattle (20, 0.926), freiburg-101 (13, 0.910): the gate loosened to 20 inliers,
+# or to an agreement of 0.949, lets one through (seattle, aces 8 fail; checked on both stacks),
+# a test for its thresholds as well as for its being on. (belgioioso 6/0.35/3, kept here
+# before, is no such window on Ubuntu 20.04's stack: OpenCV 4.2's features also give the right
+# link, 11 inliers agreeing 1.0, which wins with or without the gate; on 4.6 only the look-alike,
+# 13 inliers agreeing 0.913, is found. freiburg-101 8/0.4/16 replaces it: the same kind of link,
+# 13 inliers agreeing 0.910, found on both.)
+LOOK_ALIKE_WINDOWS = [('aces', 8, 0.4, 7), ('aces', 6, 0.35, 14), ('seattle', 6, 0.35, 13),
+                      ('freiburg-101', 8, 0.4, 16)]
+
+
+@pytest.mark.parametrize('world, robots, frac, seed', LOOK_ALIKE_WINDOWS)
 def test_look_alike_windows_with_little_evidence_are_not_placed(shared_data, world, robots, frac, seed):
     """Windows of a building's true map, each robot at a random pose (bench's look-alike sweep):
-    in these a link of 10-20 inliers whose walls agree only in the main (0.83-0.93) put a robot
-    16-40 m off, most turned by 90-180 degrees. With the evidence gate every placed robot is
-    right; without it (few_inliers 0) the same windows place one tens of metres off."""
+    without the evidence gate (few_inliers 0) a look-alike link puts robots metres off (the
+    premise, checked first: a window where it does not hold tests nothing); with the gate every
+    placed robot is right, and no robot placed right without it is lost with it."""
     from multi_map_merge.core.config import MergeConfig
     from multi_map_merge.lab.synth import pieces_windows
     world_map = load_map(os.path.join(shared_data, 'ground_truth', '%s_gt.yaml' % world))
     pieces = pieces_windows(world_map, robots, frac, seed)
     errors = {}
     gated = MergeConfig().few_inliers
-    for gate in (gated, 0):
+    for gate in (0, gated):
         m = MapMerger(MergeConfig(workers=1, few_inliers=gate))
         for k, (g, _) in enumerate(pieces):
             m.update_map('r%02d' % k, g)
         m.estimate()
         errors[gate] = [pose_error(p.T, truth(pieces[0][1], pieces[int(n[1:])][1]))[0]
                         for n, p in m.placements().items() if n != 'r00']
+    assert max(errors[0], default=0.0) > 5.0, (
+        'premise: without the gate a look-alike link places a robot metres off here', errors)
     assert all(e < 0.2 for e in errors[gated]), errors
-    assert max(errors[0]) > 10.0, errors
     # and no robot placed right without the gate is lost with it
     assert len(errors[gated]) >= sum(e < 0.2 for e in errors[0]), errors

@@ -1,6 +1,7 @@
 """Pieces cut out of real maps, moved by known poses, recovered within 2 cells and 1 degree."""
 import os
 import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -114,7 +115,7 @@ def test_merge_maps_script_subprocess(tmp_path):
     _, ps = pieces('intel', 2, 0)
     paths = write_pieces(tmp_path, ps)
     env = dict(os.environ, PYTHONPATH=os.path.join(REPO, 'src'))
-    r = subprocess.run(['/usr/bin/python3', os.path.join(REPO, 'scripts', 'merge_maps')] + paths
+    r = subprocess.run([sys.executable, os.path.join(REPO, 'scripts', 'merge_maps')] + paths
                        + ['-o', str(tmp_path / 'm.yaml'), '--transforms', str(tmp_path / 'T.yaml'),
                           '--reference', 'robot1'], capture_output=True, text=True, env=env)
     assert r.returncode == 0, r.stderr

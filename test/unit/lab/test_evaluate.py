@@ -4,6 +4,7 @@ import json
 import math
 import os
 import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -14,7 +15,14 @@ from scipy.spatial import cKDTree
 from multi_map_merge.core.grid import FREE, OCCUPIED, Grid, GridError
 from multi_map_merge.core.mapio import save_map
 from multi_map_merge.core.transforms import inverse, se2, xyyaw
-from multi_map_merge.lab.evaluate import load_transforms, load_truth, occupied_points, score_map, transform_errors
+from multi_map_merge.lab.evaluate import (
+    Open3DMissing,
+    load_transforms,
+    load_truth,
+    occupied_points,
+    score_map,
+    transform_errors,
+)
 from multi_map_merge.lab.synth import cut_piece, random_poses
 
 HOUSE = os.path.join(DATA, 'aws_small_house.yaml')
@@ -37,7 +45,7 @@ def test_occupied_points_use_the_origin_with_its_yaw():
     assert np.allclose(p[0], [1.0 - 0.15, 2.0 + 0.25])
 
 
-def test_the_map_against_itself_at_a_known_offset(house):
+def test_the_map_against_itself_at_a_known_offset(house, open3d):
     T = se2(3.0, -1.5, 0.6)
     s = score_map(in_frame(house, T), house, T)
     assert s.init_source == 'given'
@@ -55,7 +63,7 @@ def test_the_map_against_itself_at_a_known_offset(house):
 
 @pytest.mark.parametrize('name,pose', [('house', (1.234, -0.77, 0.5)), ('intel', (-2.0, 3.1, -2.4))])
 @pytest.mark.parametrize('sign', [1, -1])
-def test_icp_recovers_a_coarse_pose_off_by_15cm_10cm_3deg(name, pose, sign, house, intel):
+def test_icp_recovers_a_coarse_pose_off_by_15cm_10cm_3deg(name, pose, sign, house, intel, open3d):
     world = {'house': house, 'intel': intel}[name]
     # the whole map re-rasterised in a rotated frame: walls one cell off here and there
     piece, T = cut_piece(world, (0, world.height, 0, world.width), pose, 'k')
@@ -69,7 +77,7 @@ def test_icp_recovers_a_coarse_pose_off_by_15cm_10cm_3deg(name, pose, sign, hous
     assert pose_error(se2(*s.correction), inverse(T) @ inverse(off) @ T)[0] < 0.03
 
 
-def test_a_single_icp_at_0_1m_does_not_recover_intel_off_by_3deg(intel):
+def test_a_single_icp_at_0_1m_does_not_recover_intel_off_by_3deg(intel, open3d):
     # why score_map anneals: plain ICP at the scoring distance stays where it started
     piece, T = cut_piece(intel, (0, intel.height, 0, intel.width), (0.0, 0.0, 0.0), 'k')
     s = score_map(piece, intel, OFF @ T, stages=(1.0,))
@@ -93,7 +101,7 @@ def moved_block(world: Grid, cells: int = 7) -> tuple:
     return Grid(d, world.resolution, world.origin, 'distorted'), int(block.sum()), len(rows)
 
 
-def test_a_block_of_walls_moved_half_a_metre_loses_fitness(house):
+def test_a_block_of_walls_moved_half_a_metre_loses_fitness(house, open3d):
     bad, moved, total = moved_block(house)
     assert moved / total > 0.2
     s = score_map(bad, house, np.eye(3))
@@ -115,7 +123,7 @@ def test_a_block_of_walls_moved_half_a_metre_loses_fitness(house):
     assert good.fitness > 0.9999 and good.wrong_occupied_m2 == 0.0
 
 
-def test_without_a_coarse_pose_the_merger_places_a_cut_piece(house):
+def test_without_a_coarse_pose_the_merger_places_a_cut_piece(house, open3d):
     pose = random_poses(1, seed=7)[0]
     r0, r1, c0, c1 = house.height // 4, 3 * house.height // 4, house.width // 4, 3 * house.width // 4
     piece, T = cut_piece(house, (r0, r1, c0, c1), pose, 'piece')
@@ -131,7 +139,7 @@ def test_without_a_coarse_pose_the_merger_places_a_cut_piece(house):
     assert 0.2 < part < 0.9 and abs(s.coverage - part) < 0.01, (s.coverage, part)
 
 
-def test_when_the_merger_cannot_place_the_map_icp_starts_from_the_identity(house):
+def test_when_the_merger_cannot_place_the_map_icp_starts_from_the_identity(house, open3d):
     rng = np.random.default_rng(3)
     d = np.zeros((120, 120), np.int8)
     d[rng.random(d.shape) < 0.03] = 100           # dots that are nowhere in the house
@@ -215,8 +223,26 @@ def test_load_transforms(tmp_path):
 
 def run_cli(*args):
     env = dict(os.environ, PYTHONPATH=os.path.join(REPO, 'src'))
-    return subprocess.run(['/usr/bin/python3', os.path.join(REPO, 'scripts', 'evaluate_map')] + list(args),
+    return subprocess.run([sys.executable, os.path.join(REPO, 'scripts', 'evaluate_map')] + list(args),
                           capture_output=True, text=True, env=env, timeout=120)
+
+
+def test_without_open3d_scoring_says_what_to_install(house, monkeypatch, tmp_path):
+    """Open3D is optional (Ubuntu 20.04 does not package it): without it scoring raises an
+    ImportError naming what to install, and evaluate_map exits 2 with that one line."""
+    monkeypatch.setitem(sys.modules, 'open3d', None)          # `import open3d` fails, as where absent
+    for T in (np.eye(3), None):                               # None: before the merger's coarse pose
+        with pytest.raises(Open3DMissing, match=r'pip3 install --user open3d .*python3-open3d-pip'):
+            score_map(house, house, T)
+    code = ("import sys; sys.modules['open3d'] = None; from multi_map_merge.lab.evaluate import main; "
+            "sys.exit(main(sys.argv[1:]))")
+    env = dict(os.environ, PYTHONPATH=os.path.join(REPO, 'src'))
+    r = subprocess.run([sys.executable, '-c', code, HOUSE, HOUSE, '--json', str(tmp_path / 'o.json')],
+                       capture_output=True, text=True, env=env, timeout=120)
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 2 and len(lines) == 1, (r.returncode, r.stderr)
+    assert lines[0].startswith('evaluate_map: Open3D is not installed') and 'pip3 install' in lines[0]
+    assert not (tmp_path / 'o.json').exists() and r.stdout == ''
 
 
 def test_cli_exits_2_naming_a_bad_file(tmp_path):
@@ -229,7 +255,7 @@ def test_cli_exits_2_naming_a_bad_file(tmp_path):
     assert r.returncode == 2 and 'missing.truth.yaml' in r.stderr
 
 
-def test_cli_prints_the_figures_on_a_real_pair(tmp_path, house):
+def test_cli_prints_the_figures_on_a_real_pair(tmp_path, house, open3d):
     # a "merged map" in tb3_0's map frame; the truth file gives tb3_0's start in the world
     start0, start1 = (2.0, -1.0, 0.4), (2.3, -0.8, 1.9)
     T = se2(*start0)

@@ -118,7 +118,7 @@ def test_gmapping_counting_model():
 
 
 @pytest.mark.slow
-def test_team_maps_merge_and_score_against_the_truth(house, team):
+def test_team_maps_merge_and_score_against_the_truth(house, team, open3d):
     from multi_map_merge.core.config import MergeConfig
     from multi_map_merge.core.merger import MapMerger
     robots, lone = team
@@ -135,7 +135,7 @@ def test_team_maps_merge_and_score_against_the_truth(house, team):
     assert single.fitness < merged.fitness - 0.1                 # the lone robot drifted (paper)
 
 
-def test_score_of_the_truth_itself_and_a_shifted_start(house):
+def test_score_of_the_truth_itself_and_a_shifted_start(house, open3d):
     T = se2(1.0, -2.0, 0.3)
     s = score_map(house, house, np.eye(3))
     assert s.fitness > 0.999 and s.inlier_rmse < 1e-6 and s.coverage > 0.999 and s.wrong_occupied_m2 == 0
@@ -148,7 +148,7 @@ def test_score_of_the_truth_itself_and_a_shifted_start(house):
     assert T is not None
 
 
-def test_a_distorted_map_loses_fitness(house):
+def test_a_distorted_map_loses_fitness(house, open3d):
     bad = house.data.copy()
     h = bad.shape[0]
     bad[h // 2:] = np.roll(bad[h // 2:], 8, axis=1)            # half the building 0.4 m off
@@ -156,7 +156,7 @@ def test_a_distorted_map_loses_fitness(house):
     assert s.fitness < 0.8 and s.wrong_occupied_m2 > 1.0
 
 
-def test_score_without_a_coarse_pose_uses_the_merger(house):
+def test_score_without_a_coarse_pose_uses_the_merger(house, open3d):
     from multi_map_merge.lab.synth import cut_piece
     piece, T = cut_piece(house, (150, 330, 60, 260), (2.0, -1.0, 1.2), 'piece')
     s = score_map(piece, house)
@@ -202,7 +202,7 @@ def test_carmen_reader(tmp_path):
         sim.read_carmen(str(tmp_path / 'y.log'))
 
 
-def test_evaluate_map_cli(tmp_path):
+def test_evaluate_map_cli(tmp_path, open3d):
     import subprocess
     import sys
 

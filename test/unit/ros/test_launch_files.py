@@ -239,6 +239,11 @@ REQUIRED_ARGS = {
     'bag_replay.launch': ['bag:=/tmp/x.bag'],
     'replay_robot_bags.launch': ['bag_0:=/tmp/x.bag'],
     GMAPPING: ['ns:=tb3_0'],
+    'team_bags_gmapping.launch': ['bag_0:=/tmp/x.bag', 'bag_1:=/tmp/y.bag'],
+    os.path.join('includes', 'team_bag_robot.launch'): [
+        'ns:=tb3_0', 'bag:=/tmp/x.bag', 'clock:=true', 'clock_path:=/tmp/x.bag', 'rate:=1', 'scan_topic:=/scan',
+        'odom_topic:=/odom', 'base_frame:=base_link',
+        'gmapping_config:=' + os.path.join(LAUNCH, '..', 'config', 'gmapping_default.yaml')],
 }
 ALL_LAUNCH = sorted(os.path.relpath(p, LAUNCH)
                     for p in glob.glob(os.path.join(LAUNCH, '**', '*.launch'), recursive=True))
@@ -246,7 +251,7 @@ ALL_LAUNCH = sorted(os.path.relpath(p, LAUNCH)
 
 def test_launch_files_found():
     assert set(ALL_LAUNCH) >= {'map_merge.launch', 'turtlebot3_multi_slam.launch',
-                               'bag_replay.launch', GMAPPING}
+                               'bag_replay.launch', 'team_bags_gmapping.launch', GMAPPING}
 
 
 @pytest.mark.parametrize('name', ALL_LAUNCH)
@@ -254,7 +259,7 @@ def test_every_launch_file_parses_and_its_nodes_exist(name):
     cfg = load(name, *REQUIRED_ARGS.get(name, []))
     assert cfg.nodes, '%s starts no node' % name
     check_executables(cfg)
-    if name != GMAPPING:                 # every top-level launch file runs the merger
+    if not name.startswith('includes'):  # every top-level launch file runs the merger
         check_map_merge(cfg)
 
 
@@ -272,3 +277,26 @@ def test_rviz_config():
     (tf,) = [d for d in vm['Displays'] if d['Class'] == 'rviz/TF']
     assert tf['Enabled'] is True and tf['Show Names'] is True
     assert vm['Views']['Current']['Class'] == 'rviz/TopDownOrtho'
+
+
+def test_team_bags_gmapping_prefixes_each_robot_onto_one_clock():
+    cfg = load('team_bags_gmapping.launch', 'bag_0:=/tmp/a.bag', 'bag_1:=/tmp/b.bag', 'bag_2:=/tmp/c.bag',
+               'clock_bag:=1', 'rate:=3', 'rviz:=false')
+    plays = {n.name: n for n in nodes(cfg, 'play')}
+    assert sorted(plays) == ['play_tb3_0', 'play_tb3_1', 'play_tb3_2']
+    for k, bag in enumerate(['/tmp/a.bag', '/tmp/b.bag', '/tmp/c.bag']):
+        argv = shlex.split(plays['play_tb3_%d' % k].args)
+        # only the clock bag's player publishes /clock; every player plays its own bag at the rate
+        assert ('--clock' in argv) == (k == 1) and argv[-1] == bag and argv[argv.index('-r') + 1] == '3'
+        assert dict(plays['play_tb3_%d' % k].remap_args) == {
+            '/scan': '/tb3_%d/scan_raw' % k, '/odom': '/tb3_%d/odom_raw' % k, '/tf': '/tb3_%d/tf_raw' % k}
+    relays = {n.namespace.strip('/'): n for n in nodes(cfg, 'frame_prefix_relay')}
+    assert sorted(relays) == ['tb3_0', 'tb3_1', 'tb3_2']
+    params = {p.key: p.value for p in cfg.params.values()}
+    for k, bag in enumerate(['/tmp/a.bag', '/tmp/b.bag', '/tmp/c.bag']):
+        assert params['/tb3_%d/frame_prefix_relay/bag' % k] == bag
+        assert params['/tb3_%d/frame_prefix_relay/clock_bag' % k] == '/tmp/b.bag'
+        assert params['/tb3_%d/slam_gmapping/base_frame' % k] == 'tb3_%d/base_link' % k
+        assert params['/tb3_%d/slam_gmapping/odom_frame' % k] == 'tb3_%d/odom' % k
+        assert params['/tb3_%d/slam_gmapping/map_frame' % k] == 'tb3_%d/map' % k
+    assert params['/use_sim_time'] is True
