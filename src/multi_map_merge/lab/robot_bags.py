@@ -60,6 +60,9 @@ def main(argv: Optional[List[str]] = None) -> int:
     ap.add_argument('--robots', type=int, default=4)
     ap.add_argument('--seed', type=int, default=1)
     ap.add_argument('--no-single', action='store_true', help='do not write the single-robot bag')
+    ap.add_argument('--sensors-only', action='store_true',
+                    help='write only what the robots\' sensors record (scans, odometry, their TF): no SLAM '
+                         'model\'s maps or map -> odom, for a live gmapping to make them')
     ap.add_argument('--slam-drift', type=float, default=None,
                     help='scale of the SLAM drift model (default 1 for ray casting, %.2f for CARMEN logs; '
                          '0 = perfect SLAM)' % CARMEN_DRIFT)
@@ -101,14 +104,15 @@ def main(argv: Optional[List[str]] = None) -> int:
     else:
         team, lone = simulate_world(world, cfg)
     t_sim = time.time() - t0
-    counts = write_robot_bag(base + '.bag', team)
+    counts = write_robot_bag(base + '.bag', team, slam=not a.sensors_only)
     truth = {'world': os.path.relpath(world_path, os.path.dirname(os.path.abspath(base))),
              'source': ('carmen:' + os.path.basename(a.carmen)) if a.carmen else 'raycast',
-             'seed': a.seed, 'slam_drift': a.slam_drift, 'reference': team[0].name,
+             'seed': a.seed, 'slam_drift': None if a.sensors_only else a.slam_drift,
+             'slam_model': not a.sensors_only, 'reference': team[0].name,
              'bag': os.path.basename(base + '.bag'),
              'robots': {r.name: _run_info(r) for r in team}}
     if lone is not None and not a.no_single:
-        write_robot_bag(base + '_single.bag', [lone])
+        write_robot_bag(base + '_single.bag', [lone], slam=not a.sensors_only)
         truth['single'] = dict(_run_info(lone), bag=os.path.basename(base + '_single.bag'), name=lone.name)
     with open(base + '.truth.yaml', 'w') as f:
         f.write('# written by make_robot_bags: pose (x, y, yaw; m, rad) of each robot\'s map frame\n'

@@ -23,14 +23,15 @@ from .diagnostics import diagnostics_by_robot
 BAG_EPOCH = 1_600_000_000.0   # bag time of a simulated run's t = 0 (fixed: bags are reproducible)
 
 
-def write_robot_bag(path: str, runs, clock_rate: float = 10.0) -> Dict[str, int]:
+def write_robot_bag(path: str, runs, clock_rate: float = 10.0, slam: bool = True) -> Dict[str, int]:
     """Write robots' runs (:class:`multi_map_merge.lab.simulate.RobotRun`) to a rosbag as real
     Turtlebot3s running gmapping record them, each robot under ``/<name>/``:
     ``/<name>/scan`` (LaserScan, frame ``<name>/base_scan``), ``/<name>/odom`` (Odometry),
     ``/<name>/map`` (OccupancyGrid, frame ``<name>/map``), ``/tf`` (``<name>/odom ->
     <name>/base_footprint`` at the odometry rate, ``<name>/base_footprint -> <name>/base_scan``
-    with every scan, gmapping's ``<name>/map -> <name>/odom``), and ``/clock``.
-    Returns the number of messages per topic. lz4-compressed."""
+    with every scan, gmapping's ``<name>/map -> <name>/odom``), and ``/clock``. With ``slam``
+    False, only what the robot's own sensors record: no map and no ``map -> odom`` (for a live
+    SLAM to make them). Returns the number of messages per topic. lz4-compressed."""
     import rosbag
     from nav_msgs.msg import Odometry
     from rosgraph_msgs.msg import Clock
@@ -74,7 +75,8 @@ def write_robot_bag(path: str, runs, clock_rate: float = 10.0) -> Dict[str, int]
                 tr.transform.translation.z = o[2]
                 tfs.append(tr)
             add(t, '/tf', TFMessage(tfs))
-            add(t, '/tf', TFMessage([transform_msg(se2(*map_odom[i]), f_map, f_odom, st)]), 1)
+            if slam:
+                add(t, '/tf', TFMessage([transform_msg(se2(*map_odom[i]), f_map, f_odom, st)]), 1)
         sc = run.scans
         for k, step in enumerate(sc.steps):
             t = float(run.t[step])
@@ -89,7 +91,7 @@ def write_robot_bag(path: str, runs, clock_rate: float = 10.0) -> Dict[str, int]
             m.ranges = np.ascontiguousarray(sc.ranges[k], np.float32)
             m.intensities = np.zeros(0, np.float32)
             add(t, '/%s/scan' % n, m, 2)
-        for t, grid in run.maps:
+        for t, grid in run.maps if slam else ():
             add(t, '/%s/map' % n, grid_to_msg(grid, stamp(t), f_map), 3)
         end = max(end, float(run.t[-1]))
     for t in np.arange(0.0, end + 1e-9, 1.0 / clock_rate):
