@@ -13,7 +13,9 @@ APT_PKGS := python3-rospy python3-tf2-ros python3-nav-msgs python3-rostest pytho
   python3-geometry-msgs python3-sensor-msgs python3-catkin-pkg python3-setuptools \
   catkin ros-core-dev g++ python3-opencv python3-numpy python3-scipy python3-yaml \
   python3-pytest python3-matplotlib python3-open3d python3-tf2-msgs \
-  rosbash python3-rosparam python3-rosnode python3-rosgraph python3-rospkg python3-roslib
+  rosbash python3-rosparam python3-rosnode python3-rosgraph python3-rospkg python3-roslib \
+  rviz xvfb
+# (rviz, xvfb: test/rviz_screenshot.test runs rviz with our config under Xvfb)
 # gmapping (the real slam_gmapping node): the system's when ROS finds one (Ubuntu + Noetic:
 # ros-noetic-gmapping through rosdep), else built from ../shared/gmapping (unmodified upstream
 # source) into GMAPPING_WS and overlaid on the workspace, else none (`make gmapping` says so).
@@ -26,8 +28,10 @@ ROS_ENV := source $(SETUP) && { [ ! -f $(GMAPPING_WS)/devel/setup.bash ] || sour
 
 .PHONY: deps build gmapping test unit demo bench clean setup-path test-focal lint
 
-deps: $(WS)/.deps-ok
-$(WS)/.deps-ok:
+# the stamp names the list: a package added here is installed on the next run
+DEPS_OK := $(WS)/.deps-ok-$(shell echo '$(APT_PKGS)' | md5sum | cut -c1-8)
+deps: $(DEPS_OK)
+$(DEPS_OK):
 	@mkdir -p $(WS)
 	@missing=$$(for p in $(APT_PKGS); do dpkg-query -W -f='$${Status}\n' $$p 2>/dev/null | grep -q 'install ok installed' || echo $$p; done); \
 	if [ -n "$$missing" ]; then \
