@@ -286,7 +286,7 @@ def test_rviz_config():
         cfg = yaml.safe_load(f)
     # a saved layout: without a QMainWindow State rviz 1.14 docks every panel left over ~90% of the
     # window. Only Displays shows (left, narrow); the others are one click away in the Panels menu.
-    # test/rviz_screenshot.test checks the picture itself.
+    # test/ros/rviz_screenshot.test checks the picture itself.
     geo = cfg['Window Geometry']
     assert geo['Width'] >= 1024 and geo['Height'] >= 700 and geo['X'] == 0 and geo['Y'] == 0
     docks = rviz_docks(geo['QMainWindow State'])
