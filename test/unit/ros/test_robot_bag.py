@@ -3,6 +3,8 @@ the robots' sensors record (--sensors-only, what the live-gmapping demo replays)
 import pytest
 
 rosbag = pytest.importorskip('rosbag')
+# Debian's generated sensor_msgs serialise numpy arrays with tostring(): one warning per scan
+pytestmark = pytest.mark.filterwarnings('ignore:tostring.. is deprecated:DeprecationWarning')
 
 from multi_map_merge.lab import simulate as sim  # noqa: E402
 from multi_map_merge.ros.replay import write_robot_bag  # noqa: E402
