@@ -12,6 +12,8 @@ class MergeConfig:
     robot_namespace_pattern: str = 'tb3_*'   # fnmatch pattern of <robot> in /<robot>/map topics
     robots: List[str] = field(default_factory=list)  # explicit robot namespaces; empty = discover
     map_topic: str = 'map'                   # per-robot topic name under its namespace
+    map_updates_topic: str = ''              # per-robot updates topic; '' = <map_topic>_updates
+    merged_map_topic: str = 'map'            # output topic of the merged map (and <it>_metadata)
     reference_robot: str = ''                # '' = the first robot in name order (robot 1)
     merged_map_frame: str = 'map'            # frame of the merged map and parent of every TF
     # --- rates (node only), Hz ---
