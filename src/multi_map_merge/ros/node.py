@@ -154,9 +154,10 @@ class MergeNode:
     def _read_init_pose(self, robot: str) -> None:
         """m-explore's per-robot prior, ``/<robot>/map_merge/init_pose_{x,y,yaw}`` (metres,
         radians; the robot's map frame in a common world frame), for a robot that
-        ``initial_poses`` does not list. Users coming from m-explore, and the turtlebot3
-        multi-robot launch files, set these."""
-        if not self.cfg.init_pose_params or robot in self.cfg.initial_poses:
+        ``initial_poses`` does not list, only under ``~known_init_poses`` (off by default, as in
+        m-explore: ROBOTIS's Gazebo launch files write spawn positions there while every
+        robot's map frame starts at the world origin)."""
+        if not self.cfg.known_init_poses or robot in self.cfg.initial_poses:
             return
         names = ['/%s/map_merge/init_pose_%s' % (robot, k) for k in ('x', 'y', 'yaw')]
         try:

@@ -180,7 +180,7 @@ RULES: Dict[str, Tuple[Callable[[Any], Any], str]] = {
     'initial_poses': (_poses, 'a mapping robot: [x, y, yaw]'),
     'initial_pose_tolerance': (_tolerance, '[metres, radians]'),
     'trust_initial_poses': (_bool, 'true or false'),
-    'init_pose_params': (_bool, 'true or false'),
+    'known_init_poses': (_bool, 'true or false'),
     'workers': _int(0),
     'transforms_file': _string(False),
 }
@@ -197,9 +197,14 @@ MEXPLORE_ALIASES: Dict[str, Tuple[str, Optional[Callable[[str], str]]]] = {
     'robot_namespace': ('robot_namespace_pattern', _prefix_pattern),
     'world_frame': ('merged_map_frame', None),
     'merging_rate': ('merge_rate', None),
-    'known_init_poses': ('init_pose_params', None),
 }
-# (merged_map_topic, discovery_rate, estimation_rate: m-explore's names are ours)
+# (merged_map_topic, discovery_rate, estimation_rate, known_init_poses: m-explore's names are ours)
+
+#: our own former names still read, with a warning: old name -> (new name, why)
+DEPRECATED: Dict[str, Tuple[str, str]] = {
+    'init_pose_params': ('known_init_poses', 'deprecated: it was on by default and read '
+                         "ROBOTIS's Gazebo spawn positions as priors; set ~known_init_poses"),
+}
 
 #: m-explore's parameters read but without an equivalent here: why
 MEXPLORE_IGNORED: Dict[str, str] = {
@@ -232,6 +237,7 @@ def resolve_params(given: Mapping[str, Any]) -> Resolved:
     # former names of ours, then m-explore's: each only where our own name is not set
     aliases = {old: (new, None, 'its former name') for old, new in MergeConfig.RENAMED.items()}
     aliases.update({k: (new, conv, "m-explore's name") for k, (new, conv) in MEXPLORE_ALIASES.items()})
+    aliases.update({k: (new, None, 'its deprecated name') for k, (new, _) in DEPRECATED.items()})
     for alias, (ours, conv, kind) in aliases.items():
         if alias not in given:
             continue
@@ -240,10 +246,13 @@ def resolve_params(given: Mapping[str, Any]) -> Resolved:
                             % (alias, kind, ours, ours, given[ours]))
             continue
         value = given[alias]
+        if alias in DEPRECATED:
+            warnings.append('~%s is %s (read as ~%s: %r)' % (alias, DEPRECATED[alias][1], ours, value))
         if conv is not None and isinstance(value, str):
             value = conv(value)   # (anything else is left as given: an error naming the alias below)
         raw[ours] = value
-        notes.append('~%s read as ~%s (%s): %r' % (alias, ours, kind, value))
+        if alias not in DEPRECATED:
+            notes.append('~%s read as ~%s (%s): %r' % (alias, ours, kind, value))
     alias_of = {ours: alias for alias, (ours, _, _) in aliases.items() if alias in given and ours not in given}
     for alias, why in MEXPLORE_IGNORED.items():
         if alias in given:

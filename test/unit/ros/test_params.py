@@ -117,8 +117,8 @@ def test_mexplore_names_are_aliases():
     assert (c.map_topic, c.map_updates_topic, c.merged_map_topic) == ('gmap', 'gmap_updates', 'merged_map')
     assert c.robot_namespace_pattern == 'robot*' and c.merged_map_frame == 'world'
     assert (c.merge_rate, c.discovery_rate, c.estimation_rate) == (4.0, 0.05, 0.5)
-    assert c.init_pose_params is True
-    assert len(res.notes) == 6   # one info line per alias read
+    assert c.known_init_poses is True
+    assert len(res.notes) == 5   # one info line per alias read
 
 
 @pytest.mark.parametrize('ns,pattern', [('', '*'), ('/tb3', 'tb3*'), ('robot_', 'robot_*')])
@@ -182,3 +182,22 @@ def test_no_launch_file_sets_a_parameter_the_merger_warns_about():
             checked += 1
     assert checked >= 1
 
+
+
+def test_known_init_poses_is_off_by_default_as_in_mexplore():
+    assert MergeConfig().known_init_poses is False
+    assert resolve_params(shipped_yaml()).config.known_init_poses is False
+
+
+def test_init_pose_params_is_a_deprecated_alias_of_known_init_poses():
+    res = resolve_params({'init_pose_params': True})
+    assert res.config.known_init_poses is True and not res.errors
+    assert len(res.warnings) == 1 and 'deprecated' in res.warnings[0] and '~known_init_poses' in res.warnings[0]
+    res = resolve_params({'init_pose_params': True, 'known_init_poses': False})
+    assert res.config.known_init_poses is False and len(res.warnings) == 1 and 'wins' in res.warnings[0]
+
+
+def test_the_readme_has_the_robotis_gazebo_troubleshooting_entry():
+    with open(os.path.join(REPO, 'README.md')) as f:
+        text = f.read()
+    assert "ROBOTIS's Gazebo" in text and '`~known_init_poses`' in text
