@@ -13,6 +13,7 @@ import rospy
 import tf2_ros
 from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import MapMetaData
+from nav_msgs.srv import GetMap, GetMapResponse
 from std_srvs.srv import Trigger, TriggerResponse
 
 from ..core.config import MergeConfig
@@ -69,6 +70,8 @@ class MergeNode:
         self._last_est = 0.0
         self._est_seconds = 0.0
         rospy.Service('~reset', Trigger, self._reset)
+        # gmapping's service, under gmapping's (relative) name, beside the `map` topic
+        rospy.Service('dynamic_map', GetMap, self._get_map)
         if config.transforms_file:
             try:
                 n = self.merger.restore_state(load_state(config.transforms_file))
@@ -293,6 +296,16 @@ class MergeNode:
         self._diag_pub.publish(diagnostics_msg(self.merger.status(), self._gone, self._est_seconds,
                                                len(self.merger.frames()), len(self.merger.placements()),
                                                rospy.Time.now(), time.time()))
+
+    def _get_map(self, _req) -> GetMapResponse:
+        """The merged map as /map has it now (gmapping's ``dynamic_map``); an error before
+        the reference robot's first map arrived."""
+        grid = self._ready
+        if grid is None:
+            raise rospy.ServiceException('no merged map yet (no map of the reference robot received)')
+        msg = grid_to_msg(grid, rospy.Time.now(), self.cfg.merged_map_frame)
+        msg.data = msg.data.tolist()   # the service's response is a plain (not numpy) message
+        return GetMapResponse(map=msg)
 
     def _reset(self, _req) -> TriggerResponse:
         self.merger.reset()
