@@ -201,3 +201,19 @@ def test_the_readme_has_the_robotis_gazebo_troubleshooting_entry():
     with open(os.path.join(REPO, 'README.md')) as f:
         text = f.read()
     assert "ROBOTIS's Gazebo" in text and '`~known_init_poses`' in text
+
+
+def test_robotis_mexplore_block_resolves_with_only_the_confidence_warning():
+    """The parameters turtlebot3_slam's multi_map_merge.launch gives m-explore's node, given to
+    ours unchanged (only pkg and type changed)."""
+    robotis = {'robot_map_topic': 'map', 'robot_namespace': 'tb3', 'merged_map_topic': 'map',
+               'world_frame': 'map', 'known_init_poses': True, 'merging_rate': 0.5,
+               'discovery_rate': 0.05, 'estimation_rate': 0.1, 'estimation_confidence': 1.0}
+    res = resolve_params(robotis)
+    assert not res.errors
+    assert len(res.warnings) == 1 and '~estimation_confidence' in res.warnings[0]
+    c = res.config
+    assert (c.map_topic, c.robot_namespace_pattern) == ('map', 'tb3*')
+    assert (c.merged_map_topic, c.merged_map_frame) == ('map', 'map')
+    assert (c.merge_rate, c.discovery_rate, c.estimation_rate, c.known_init_poses) == (0.5, 0.05, 0.1, True)
+    assert c.min_inlier_ratio == MergeConfig().min_inlier_ratio   # estimation_confidence maps to nothing
