@@ -1,5 +1,6 @@
 #!/usr/bin/env python3
-"""rostest: m-explore's per-robot priors (/<robot>/map_merge/init_pose_*) are read by the node.
+"""rostest: m-explore's per-robot priors (/<robot>/map_merge/init_pose_*) are read by the node
+under ~known_init_poses (set by init_pose_params.test).
 On the Turtlebot3 double house (two near-identical halves) the maps alone stack one half on the
 other; with the priors every robot ends where it started, both halves covered (skipped without
 ../shared/data)."""
@@ -27,6 +28,7 @@ class TestInitPoseParams(unittest.TestCase):
         if not all(os.path.exists(p) for p in paths):
             self.skipTest('../shared/data/tb3_house is absent')
         init_node('test_init_pose_params')
+        self.assertTrue(rospy.get_param('/map_merge/known_init_poses'))
         pubs = []
         for r, p in zip(ROBOTS, paths):
             pub = rospy.Publisher('/%s/map' % r, NumpyGrid, queue_size=1, latch=True)

@@ -12,6 +12,8 @@ class MergeConfig:
     robot_namespace_pattern: str = 'tb3_*'   # fnmatch pattern of <robot> in /<robot>/map topics
     robots: List[str] = field(default_factory=list)  # explicit robot namespaces; empty = discover
     map_topic: str = 'map'                   # per-robot topic name under its namespace
+    map_updates_topic: str = ''              # per-robot updates topic; '' = <map_topic>_updates
+    merged_map_topic: str = 'map'            # output topic of the merged map (and <it>_metadata)
     reference_robot: str = ''                # '' = the first robot in name order (robot 1)
     merged_map_frame: str = 'map'            # frame of the merged map and parent of every TF
     # --- rates (node only), Hz ---
@@ -46,11 +48,13 @@ class MergeConfig:
     agreement_tolerance: int = 2             # cells
     pose_graph: bool = True                  # place robots by all verified links at once (cycles averaged)
     ambiguity_margin: float = 0.1            # a 2nd placement verifying within this agreement: unmerged; 0 = off
-    # --- prior knowledge of where robots started (optional, like m-explore's known_init_poses) ---
+    # --- prior knowledge of where robots started (optional). A prior is the pose of a robot's map
+    # frame in one frame common to all priors; only differences count (the merged frame is the
+    # reference robot's map frame, and a link is checked against prior_ref^-1 * prior_robot) ---
     initial_poses: Dict[str, List[float]] = field(default_factory=dict)  # robot: [x, y, yaw]
     initial_pose_tolerance: List[float] = field(default_factory=lambda: [1.0, 0.35])  # m, rad
     trust_initial_poses: bool = False        # place robots with no verified link at their prior
-    init_pose_params: bool = True            # node: also read m-explore's /<robot>/map_merge/init_pose_{x,y,yaw}
+    known_init_poses: bool = False           # node: read m-explore's /<robot>/map_merge/init_pose_{x,y,yaw}
     # --- speed ---
     workers: int = 0                         # estimation processes; 0 = one per core, 1 = inline
     # --- persistence (node only) ---

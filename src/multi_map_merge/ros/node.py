@@ -6,7 +6,6 @@ import fnmatch
 import math
 import threading
 import time
-from dataclasses import fields
 from typing import Dict
 
 import numpy as np
@@ -14,6 +13,7 @@ import rospy
 import tf2_ros
 from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import MapMetaData
+from nav_msgs.srv import GetMap, GetMapResponse
 from std_srvs.srv import Trigger, TriggerResponse
 
 from ..core.config import MergeConfig
@@ -22,17 +22,27 @@ from ..core.merger import MapMerger
 from ..core.state import load_state, save_state
 from .convert import NumpyGrid, NumpyGridUpdate, grid_from_msg, grid_to_msg, metadata, transform_msg
 from .diagnostics import diagnostics_msg
+from .params import resolve_params
 
 
 def load_config() -> MergeConfig:
-    """Every parameter of the node, read once from the private namespace; the defaults are
-    MergeConfig's, which equal config/map_merge.yaml."""
-    default = MergeConfig()
-    params = {f.name: rospy.get_param('~' + f.name, getattr(default, f.name)) for f in fields(MergeConfig)}
-    for old, new in MergeConfig.RENAMED.items():
-        if rospy.has_param('~' + old) and not rospy.has_param('~' + new):
-            params[new] = rospy.get_param('~' + old)
-    return MergeConfig.from_dict(params)
+    """Every parameter of the node, read once from the private namespace and validated
+    (:func:`resolve_params`): an invalid value is logged as an error naming the parameter and
+    what it accepts, and its default is used; an unknown name gets a warning naming the closest
+    known one; m-explore's names are read as aliases. The defaults are MergeConfig's, which
+    equal config/map_merge.yaml."""
+    try:
+        given = rospy.get_param('~', {})
+    except KeyError:
+        given = {}
+    res = resolve_params(given if isinstance(given, dict) else {})
+    for line in res.errors:
+        rospy.logerr('multi_map_merge: %s', line)
+    for line in res.warnings:
+        rospy.logwarn('multi_map_merge: %s', line)
+    for line in res.notes:
+        rospy.loginfo('multi_map_merge: %s', line)
+    return res.config
 
 
 class MergeNode:
@@ -52,13 +62,16 @@ class MergeNode:
         self._latest: Dict[str, Grid] = {}   # last accepted raw grid per robot (for map_updates)
         self._saved_version = -1
         self._lock = threading.Lock()
-        self._map_pub = rospy.Publisher('map', NumpyGrid, queue_size=1, latch=True)
-        self._meta_pub = rospy.Publisher('map_metadata', MapMetaData, queue_size=1, latch=True)
+        self._map_pub = rospy.Publisher(config.merged_map_topic, NumpyGrid, queue_size=1, latch=True)
+        self._meta_pub = rospy.Publisher(config.merged_map_topic + '_metadata', MapMetaData,
+                                         queue_size=1, latch=True)
         self._diag_pub = rospy.Publisher('/diagnostics', DiagnosticArray, queue_size=10)
         self._tf = tf2_ros.TransformBroadcaster()
         self._last_est = 0.0
         self._est_seconds = 0.0
         rospy.Service('~reset', Trigger, self._reset)
+        # gmapping's service, under gmapping's (relative) name, beside the `map` topic
+        rospy.Service('dynamic_map', GetMap, self._get_map)
         if config.transforms_file:
             try:
                 n = self.merger.restore_state(load_state(config.transforms_file))
@@ -103,6 +116,8 @@ class MergeNode:
             parts = topic.strip('/').split('/')
             if len(parts) != 2 or parts[1] != self.cfg.map_topic or ttype != 'nav_msgs/OccupancyGrid':
                 continue
+            if topic == self._map_pub.resolved_name:
+                continue   # our own merged map (~merged_map_topic set to /<robot>/<map_topic>)
             if fnmatch.fnmatch(parts[0], self.cfg.robot_namespace_pattern):
                 found.append(parts[0])
         if found:
@@ -130,10 +145,11 @@ class MergeNode:
             if robot in self._subs:
                 return
             topic = '/%s/%s' % (robot, self.cfg.map_topic)
+            updates = '/%s/%s' % (robot, self.cfg.map_updates_topic or self.cfg.map_topic + '_updates')
             self._subs[robot] = [
                 rospy.Subscriber(topic, NumpyGrid, self._on_map, callback_args=robot,
                                  queue_size=1, buff_size=2 ** 26),
-                rospy.Subscriber(topic + '_updates', NumpyGridUpdate, self._on_update,
+                rospy.Subscriber(updates, NumpyGridUpdate, self._on_update,
                                  callback_args=robot, queue_size=10, buff_size=2 ** 24)]
         rospy.loginfo('multi_map_merge: robot %s found, subscribed to %s', robot, topic)
         self._read_init_pose(robot)
@@ -141,9 +157,10 @@ class MergeNode:
     def _read_init_pose(self, robot: str) -> None:
         """m-explore's per-robot prior, ``/<robot>/map_merge/init_pose_{x,y,yaw}`` (metres,
         radians; the robot's map frame in a common world frame), for a robot that
-        ``initial_poses`` does not list. Users coming from m-explore, and the turtlebot3
-        multi-robot launch files, set these."""
-        if not self.cfg.init_pose_params or robot in self.cfg.initial_poses:
+        ``initial_poses`` does not list, only under ``~known_init_poses`` (off by default, as in
+        m-explore: ROBOTIS's Gazebo launch files write spawn positions there while every
+        robot's map frame starts at the world origin)."""
+        if not self.cfg.known_init_poses or robot in self.cfg.initial_poses:
             return
         names = ['/%s/map_merge/init_pose_%s' % (robot, k) for k in ('x', 'y', 'yaw')]
         try:
@@ -279,6 +296,16 @@ class MergeNode:
         self._diag_pub.publish(diagnostics_msg(self.merger.status(), self._gone, self._est_seconds,
                                                len(self.merger.frames()), len(self.merger.placements()),
                                                rospy.Time.now(), time.time()))
+
+    def _get_map(self, _req) -> GetMapResponse:
+        """The merged map as /map has it now (gmapping's ``dynamic_map``); an error before
+        the reference robot's first map arrived."""
+        grid = self._ready
+        if grid is None:
+            raise rospy.ServiceException('no merged map yet (no map of the reference robot received)')
+        msg = grid_to_msg(grid, rospy.Time.now(), self.cfg.merged_map_frame)
+        msg.data = msg.data.tolist()   # the service's response is a plain (not numpy) message
+        return GetMapResponse(map=msg)
 
     def _reset(self, _req) -> TriggerResponse:
         self.merger.reset()

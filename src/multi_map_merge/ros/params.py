@@ -1,0 +1,284 @@
+"""The node's private parameters, resolved and validated as a pure function (no master, no
+rospy): :func:`resolve_params` takes what ``rospy.get_param('~')`` returns and gives the
+:class:`MergeConfig` to run with, plus the errors and warnings to log.
+
+A value of the wrong type or out of range is an error naming the parameter and what it
+accepts; the node then runs with that parameter's default (a merger that refuses to start takes
+a robot team's map away over one typo; the error line says what was used instead). A private
+parameter the node does not know is a warning naming the closest known one. m-explore's
+(``multirobot_map_merge``) names are read as aliases (:data:`MEXPLORE_ALIASES`); when an alias
+and our own name are both set, ours wins, with a warning.
+"""
+from __future__ import annotations
+
+import difflib
+import math
+from dataclasses import dataclass, field, fields
+from typing import Any, Callable, Dict, List, Mapping, Optional, Tuple
+
+from ..core.config import MergeConfig
+
+
+class _Invalid(ValueError):
+    pass
+
+
+# -- converters: value -> value of the field's type, or _Invalid saying what is accepted
+def _number(v: Any) -> float:
+    if isinstance(v, bool):
+        raise _Invalid('a number')
+    if isinstance(v, (int, float)):
+        x = float(v)
+    elif isinstance(v, str):
+        try:
+            x = float(v.strip())
+        except ValueError:
+            raise _Invalid('a number') from None
+    else:
+        raise _Invalid('a number')
+    if not math.isfinite(x):
+        raise _Invalid('a finite number')
+    return x
+
+
+def _float(lo: Optional[float] = None, hi: Optional[float] = None, lo_open: bool = False
+           ) -> Tuple[Callable[[Any], Any], str]:
+    rng = _range_text(lo, hi, lo_open, 'a number')
+
+    def conv(v: Any) -> float:
+        try:
+            x = _number(v)
+        except _Invalid:
+            raise _Invalid(rng) from None
+        if (lo is not None and (x < lo or (lo_open and x == lo))) or (hi is not None and x > hi):
+            raise _Invalid(rng)
+        return x
+    return conv, rng
+
+
+def _int(lo: int = 0) -> Tuple[Callable[[Any], Any], str]:
+    rng = 'an integer >= %d' % lo
+
+    def conv(v: Any) -> int:
+        try:
+            x = _number(v)
+        except _Invalid:
+            raise _Invalid(rng) from None
+        if not x.is_integer() or x < lo:
+            raise _Invalid(rng)
+        return int(x)
+    return conv, rng
+
+
+def _range_text(lo, hi, lo_open, what):
+    if lo is not None and hi is not None:
+        return '%s in %s%g, %g]' % (what, '(' if lo_open else '[', lo, hi)
+    if lo is not None:
+        return '%s %s %g' % (what, '>' if lo_open else '>=', lo)
+    return what
+
+
+def _bool(v: Any) -> bool:
+    if isinstance(v, bool):
+        return v
+    if isinstance(v, int) and v in (0, 1):
+        return bool(v)
+    if isinstance(v, str) and v.strip().lower() in ('true', 'false', '1', '0'):
+        return v.strip().lower() in ('true', '1')
+    raise _Invalid('true or false')
+
+
+def _string(nonempty: bool) -> Tuple[Callable[[Any], Any], str]:
+    what = 'a non-empty string' if nonempty else 'a string'
+
+    def conv(v: Any) -> str:
+        if isinstance(v, (dict, list, tuple)) or v is None or isinstance(v, bool):
+            raise _Invalid(what)
+        s = str(v).strip()
+        if nonempty and not s:
+            raise _Invalid(what)
+        return s
+    return conv, what
+
+
+def _string_list(v: Any) -> List[str]:
+    if isinstance(v, str):
+        return v.split()
+    if isinstance(v, (list, tuple)) and all(isinstance(x, str) and x.strip() for x in v):
+        return [x.strip() for x in v]
+    raise _Invalid('a list of robot namespaces (or one string of them separated by spaces)')
+
+
+def _poses(v: Any) -> Dict[str, List[float]]:
+    what = 'a mapping robot: [x, y, yaw] of finite numbers'
+    if not isinstance(v, dict):
+        raise _Invalid(what)
+    out = {}
+    for k, p in v.items():
+        if not isinstance(p, (list, tuple)) or len(p) != 3:
+            raise _Invalid(what)
+        try:
+            out[str(k).strip('/')] = [_number(x) for x in p]
+        except _Invalid:
+            raise _Invalid(what) from None
+    return out
+
+
+def _tolerance(v: Any) -> List[float]:
+    what = '[metres, radians], two numbers >= 0'
+    if not isinstance(v, (list, tuple)) or len(v) != 2:
+        raise _Invalid(what)
+    try:
+        out = [_number(x) for x in v]
+    except _Invalid:
+        raise _Invalid(what) from None
+    if min(out) < 0:
+        raise _Invalid(what)
+    return out
+
+
+_RATE = _float(0.0, None, lo_open=True)
+_UNIT = _float(0.0, 1.0)
+_PERCENT = _float(0.0, 100.0)
+
+#: every MergeConfig field: (converter, what it accepts); a unit test checks none is missing
+RULES: Dict[str, Tuple[Callable[[Any], Any], str]] = {
+    'robot_namespace_pattern': _string(True),
+    'robots': (_string_list, 'a list of robot namespaces'),
+    'map_topic': _string(True),
+    'map_updates_topic': _string(False),
+    'merged_map_topic': _string(True),
+    'reference_robot': _string(False),
+    'merged_map_frame': _string(True),
+    'estimation_rate': _RATE,
+    'merge_rate': _RATE,
+    'discovery_rate': _RATE,
+    'tf_rate': _RATE,
+    'free_thresh': _PERCENT,
+    'occupied_thresh': _PERCENT,
+    'max_cells': _int(1),
+    'akaze_threshold': _float(0.0, None, lo_open=True),
+    'max_features': _int(0),
+    'feature_cells': _int(0),
+    'match_candidates': _int(1),
+    'match_ratio': _float(0.0, 1.0, lo_open=True),
+    'ransac_threshold': _float(0.0, None, lo_open=True),
+    'ransac_iterations': _int(1),
+    'ransac_hypotheses': _int(1),
+    'min_matches': _int(0),
+    'min_inliers': _int(0),
+    'min_inlier_ratio': _UNIT,
+    'few_inliers': _int(0),
+    'few_inliers_min_agreement': _UNIT,
+    'replace_margin': _float(0.0),
+    'refine': (_bool, 'true or false'),
+    'min_agreement': _UNIT,
+    'min_overlap_cells': _int(0),
+    'agreement_tolerance': _int(0),
+    'pose_graph': (_bool, 'true or false'),
+    'ambiguity_margin': _UNIT,
+    'initial_poses': (_poses, 'a mapping robot: [x, y, yaw]'),
+    'initial_pose_tolerance': (_tolerance, '[metres, radians]'),
+    'trust_initial_poses': (_bool, 'true or false'),
+    'known_init_poses': (_bool, 'true or false'),
+    'workers': _int(0),
+    'transforms_file': _string(False),
+}
+
+
+def _prefix_pattern(ns: str) -> str:
+    return ns.strip('/') + '*'
+
+
+#: m-explore's parameter name -> (our parameter, conversion of its value or None)
+MEXPLORE_ALIASES: Dict[str, Tuple[str, Optional[Callable[[str], str]]]] = {
+    'robot_map_topic': ('map_topic', None),
+    'robot_map_updates_topic': ('map_updates_topic', None),
+    'robot_namespace': ('robot_namespace_pattern', _prefix_pattern),
+    'world_frame': ('merged_map_frame', None),
+    'merging_rate': ('merge_rate', None),
+}
+# (merged_map_topic, discovery_rate, estimation_rate, known_init_poses: m-explore's names are ours)
+
+#: our own former names still read, with a warning: old name -> (new name, why)
+DEPRECATED: Dict[str, Tuple[str, str]] = {
+    'init_pose_params': ('known_init_poses', 'deprecated: it was on by default and read '
+                         "ROBOTIS's Gazebo spawn positions as priors; set ~known_init_poses"),
+}
+
+#: m-explore's parameters read but without an equivalent here: why
+MEXPLORE_IGNORED: Dict[str, str] = {
+    'estimation_confidence': (
+        'm-explore\'s estimation_confidence (a threshold on OpenCV stitching\'s match confidence) '
+        'has no equivalent here and is ignored: links are accepted by min_inliers, '
+        'min_inlier_ratio and the verification on the grids (min_agreement)'),
+}
+
+
+@dataclass
+class Resolved:
+    config: MergeConfig
+    errors: List[str] = field(default_factory=list)
+    warnings: List[str] = field(default_factory=list)
+    notes: List[str] = field(default_factory=list)   # aliases read: worth an info line
+
+
+def resolve_params(given: Mapping[str, Any]) -> Resolved:
+    """``given``: the node's private namespace as a mapping (name -> value)."""
+    default = MergeConfig()
+    names = [f.name for f in fields(MergeConfig)]
+    errors: List[str] = []
+    warnings: List[str] = []
+    notes: List[str] = []
+    raw: Dict[str, Any] = {}
+    for name in names:
+        if name in given:
+            raw[name] = given[name]
+    # former names of ours, then m-explore's: each only where our own name is not set
+    aliases = {old: (new, None, 'its former name') for old, new in MergeConfig.RENAMED.items()}
+    aliases.update({k: (new, conv, "m-explore's name") for k, (new, conv) in MEXPLORE_ALIASES.items()})
+    aliases.update({k: (new, None, 'its deprecated name') for k, (new, _) in DEPRECATED.items()})
+    for alias, (ours, conv, kind) in aliases.items():
+        if alias not in given:
+            continue
+        if ours in given:
+            warnings.append('~%s (%s for ~%s) ignored: ~%s is set too and wins (%r)'
+                            % (alias, kind, ours, ours, given[ours]))
+            continue
+        value = given[alias]
+        if alias in DEPRECATED:
+            warnings.append('~%s is %s (read as ~%s: %r)' % (alias, DEPRECATED[alias][1], ours, value))
+        if conv is not None and isinstance(value, str):
+            value = conv(value)   # (anything else is left as given: an error naming the alias below)
+        raw[ours] = value
+        if alias not in DEPRECATED:
+            notes.append('~%s read as ~%s (%s): %r' % (alias, ours, kind, value))
+    alias_of = {ours: alias for alias, (ours, _, _) in aliases.items() if alias in given and ours not in given}
+    for alias, why in MEXPLORE_IGNORED.items():
+        if alias in given:
+            warnings.append('~%s: %s' % (alias, why))
+    kw: Dict[str, Any] = {}
+    for name, value in raw.items():
+        conv, accepts = RULES[name]
+        try:
+            kw[name] = conv(value)
+        except _Invalid as e:
+            shown = '~%s (given as ~%s)' % (name, alias_of[name]) if name in alias_of else '~%s' % name
+            errors.append('%s = %r is invalid: must be %s; using the default %r'
+                          % (shown, value, e, getattr(default, name)))
+    # cross-parameter checks
+    free = kw.get('free_thresh', default.free_thresh)
+    occ = kw.get('occupied_thresh', default.occupied_thresh)
+    if free >= occ:
+        errors.append('~free_thresh (%g) must be below ~occupied_thresh (%g); using the defaults '
+                      '%g and %g' % (free, occ, default.free_thresh, default.occupied_thresh))
+        kw.pop('free_thresh', None)
+        kw.pop('occupied_thresh', None)
+    known = set(names) | set(aliases) | set(MEXPLORE_IGNORED)
+    for name in sorted(given):
+        if name in known:
+            continue
+        close = difflib.get_close_matches(name, sorted(known), n=1, cutoff=0.6)
+        warnings.append('unknown parameter ~%s ignored%s' % (
+            name, ': did you mean ~%s?' % close[0] if close else ' (the README lists the parameters)'))
+    return Resolved(MergeConfig(**kw), errors, warnings, notes)

@@ -1,0 +1,219 @@
+"""The node's parameter resolution (ros/params.py) as a pure function: no master, no rospy.
+What a user's YAML or launch file gives -> the MergeConfig the node runs with, and the errors
+and warnings it logs."""
+import glob
+import os
+from dataclasses import fields
+
+import pytest
+import yaml
+from conftest import REPO
+
+from multi_map_merge.core.config import MergeConfig
+from multi_map_merge.ros.params import MEXPLORE_ALIASES, MEXPLORE_IGNORED, RULES, resolve_params
+
+
+def shipped_yaml():
+    with open(os.path.join(REPO, 'config', 'map_merge.yaml')) as f:
+        return yaml.safe_load(f)
+
+
+def test_every_parameter_has_a_rule():
+    assert set(RULES) == {f.name for f in fields(MergeConfig)}
+
+
+def test_shipped_yaml_resolves_clean_to_the_defaults():
+    res = resolve_params(shipped_yaml())
+    assert (res.errors, res.warnings, res.notes) == ([], [], [])
+    assert res.config == MergeConfig()
+
+
+def test_nothing_given_is_the_defaults():
+    res = resolve_params({})
+    assert res.config == MergeConfig() and not res.errors and not res.warnings
+
+
+@pytest.mark.parametrize('name', ['estimation_rate', 'merge_rate', 'discovery_rate', 'tf_rate'])
+@pytest.mark.parametrize('value', [0, 0.0, -1.0, float('nan'), float('inf'), 'fast', True, [2.0]])
+def test_a_bad_rate_is_an_error_naming_it_and_its_range_and_the_default_is_used(name, value):
+    res = resolve_params({name: value})
+    assert getattr(res.config, name) == getattr(MergeConfig(), name)
+    assert len(res.errors) == 1, res.errors
+    assert '~%s' % name in res.errors[0] and '> 0' in res.errors[0], res.errors[0]
+    assert 'using the default %r' % getattr(MergeConfig(), name) in res.errors[0]
+
+
+def test_good_values_of_every_kind_are_taken_and_converted():
+    given = {'merge_rate': 1, 'estimation_rate': '0.25', 'max_cells': 1e6, 'min_inliers': '12',
+             'refine': 'false', 'pose_graph': 0, 'robots': 'tb3_0 tb3_1', 'reference_robot': 'tb3_1',
+             'initial_poses': {'/tb3_0': [0, 0, 0], 'tb3_1': ['1.5', -2, 0.1]},
+             'initial_pose_tolerance': [0.5, 0.2], 'min_inlier_ratio': 0.3}
+    res = resolve_params(given)
+    assert not res.errors and not res.warnings
+    c = res.config
+    assert c.merge_rate == 1.0 and isinstance(c.merge_rate, float) and c.estimation_rate == 0.25
+    assert c.max_cells == 1000000 and isinstance(c.max_cells, int) and c.min_inliers == 12
+    assert c.refine is False and c.pose_graph is False
+    assert c.robots == ['tb3_0', 'tb3_1'] and c.reference_robot == 'tb3_1'
+    assert c.initial_poses == {'tb3_0': [0.0, 0.0, 0.0], 'tb3_1': [1.5, -2.0, 0.1]}
+    assert c.initial_pose_tolerance == [0.5, 0.2] and c.min_inlier_ratio == 0.3
+
+
+@pytest.mark.parametrize('name,value,accepts', [
+    ('max_cells', 0, 'integer >= 1'),
+    ('max_cells', 2.5, 'integer >= 1'),
+    ('workers', -1, 'integer >= 0'),
+    ('min_agreement', 1.5, '[0, 1]'),
+    ('match_ratio', 0, '(0, 1]'),
+    ('free_thresh', 101, '[0, 100]'),
+    ('akaze_threshold', 0, '> 0'),
+    ('refine', 'yes', 'true or false'),
+    ('refine', 2, 'true or false'),
+    ('map_topic', '', 'non-empty string'),
+    ('merged_map_frame', {'a': 1}, 'non-empty string'),
+    ('robots', [1, 2], 'list of robot namespaces'),
+    ('initial_poses', {'tb3_0': [0, 0]}, 'robot: [x, y, yaw]'),
+    ('initial_poses', {'tb3_0': [0, 'x', 0]}, 'robot: [x, y, yaw]'),
+    ('initial_poses', [0, 0, 0], 'robot: [x, y, yaw]'),
+    ('initial_pose_tolerance', [1.0], '[metres, radians]'),
+    ('initial_pose_tolerance', [1.0, -0.1], '[metres, radians]'),
+])
+def test_invalid_values_are_errors_and_defaults_are_used(name, value, accepts):
+    res = resolve_params({name: value, 'merge_rate': 3.0})
+    assert len(res.errors) == 1 and '~%s' % name in res.errors[0] and accepts in res.errors[0], res.errors
+    assert getattr(res.config, name) == getattr(MergeConfig(), name)
+    assert res.config.merge_rate == 3.0   # the others are still taken
+
+
+def test_free_thresh_must_be_below_occupied_thresh():
+    res = resolve_params({'free_thresh': 70, 'occupied_thresh': 60})
+    assert len(res.errors) == 1 and '~free_thresh' in res.errors[0] and '~occupied_thresh' in res.errors[0]
+    assert (res.config.free_thresh, res.config.occupied_thresh) == (19.6, 65.0)
+
+
+@pytest.mark.parametrize('typo,closest', [('merge_rat', 'merge_rate'), ('estimaton_rate', 'estimation_rate'),
+                                          ('robot_namespace_patern', 'robot_namespace_pattern'),
+                                          ('refne', 'refine'), ('merging_rte', 'merging_rate')])
+def test_an_unknown_parameter_is_one_warning_naming_the_closest_known(typo, closest):
+    res = resolve_params({typo: 1.0})
+    assert res.warnings == ['unknown parameter ~%s ignored: did you mean ~%s?' % (typo, closest)]
+    assert res.config == MergeConfig() and not res.errors
+
+
+def test_an_unknown_parameter_like_no_known_one_is_still_warned():
+    res = resolve_params({'zzzz': 1, 'qqqq_xxxx': 2})
+    assert len(res.warnings) == 2 and all('unknown parameter' in w for w in res.warnings)
+
+
+def test_mexplore_names_are_aliases():
+    """m-explore's map_merge parameters, as its README and launch files set them."""
+    given = {'robot_map_topic': 'gmap', 'robot_map_updates_topic': 'gmap_updates',
+             'robot_namespace': 'robot', 'merged_map_topic': 'merged_map', 'world_frame': 'world',
+             'merging_rate': 4.0, 'discovery_rate': 0.05, 'estimation_rate': 0.5,
+             'known_init_poses': True}
+    res = resolve_params(given)
+    assert not res.errors and not res.warnings, (res.errors, res.warnings)
+    c = res.config
+    assert (c.map_topic, c.map_updates_topic, c.merged_map_topic) == ('gmap', 'gmap_updates', 'merged_map')
+    assert c.robot_namespace_pattern == 'robot*' and c.merged_map_frame == 'world'
+    assert (c.merge_rate, c.discovery_rate, c.estimation_rate) == (4.0, 0.05, 0.5)
+    assert c.known_init_poses is True
+    assert len(res.notes) == 5   # one info line per alias read
+
+
+@pytest.mark.parametrize('ns,pattern', [('', '*'), ('/tb3', 'tb3*'), ('robot_', 'robot_*')])
+def test_robot_namespace_becomes_a_prefix_pattern(ns, pattern):
+    assert resolve_params({'robot_namespace': ns}).config.robot_namespace_pattern == pattern
+
+
+def test_ours_wins_over_an_alias_with_a_warning():
+    res = resolve_params({'merge_rate': 2.0, 'merging_rate': 8.0, 'map_topic': 'map', 'robot_map_topic': 'x'})
+    assert res.config.merge_rate == 2.0 and res.config.map_topic == 'map'
+    assert len(res.warnings) == 2
+    assert any('~merging_rate' in w and '~merge_rate' in w and 'wins' in w for w in res.warnings)
+
+
+def test_an_invalid_alias_value_is_an_error_naming_the_alias():
+    res = resolve_params({'merging_rate': 0})
+    assert res.config.merge_rate == MergeConfig().merge_rate
+    assert len(res.errors) == 1 and '~merging_rate' in res.errors[0] and '> 0' in res.errors[0]
+
+
+def test_estimation_confidence_is_accepted_but_said_to_have_no_equivalent():
+    res = resolve_params({'estimation_confidence': 1.0})
+    assert res.config == MergeConfig() and not res.errors
+    assert len(res.warnings) == 1 and 'no equivalent' in res.warnings[0]
+
+
+def test_the_former_name_of_min_inlier_ratio_is_still_read():
+    assert resolve_params({'min_reliability': 0.3}).config.min_inlier_ratio == 0.3
+    res = resolve_params({'min_reliability': 0.3, 'min_inlier_ratio': 0.2})
+    assert res.config.min_inlier_ratio == 0.2 and len(res.warnings) == 1
+
+
+def test_the_readme_documents_every_alias():
+    with open(os.path.join(REPO, 'README.md')) as f:
+        text = f.read()
+    assert 'Switching from m-explore' in text
+    for name in list(MEXPLORE_ALIASES) + list(MEXPLORE_IGNORED) + ['merged_map_topic']:
+        assert '`%s`' % name in text, name
+
+
+def test_no_launch_file_sets_a_parameter_the_merger_warns_about():
+    """Every private parameter our launch files give the merger resolves without a word."""
+    roslaunch = pytest.importorskip('roslaunch')
+    from roslaunch.config import ROSLaunchConfig
+    from roslaunch.xmlloader import XmlLoader
+    checked = 0
+    for path in sorted(glob.glob(os.path.join(REPO, 'launch', '*.launch'))):
+        cfg = ROSLaunchConfig()
+        try:
+            XmlLoader().load(path, cfg, argv=[], verbose=False)
+        except roslaunch.core.RLException:
+            continue   # a launch file with a required arg: test_launch_files covers it
+        for n in cfg.nodes:
+            if n.type != 'map_merge_node':
+                continue
+            prefix = (n.namespace + n.name + '/')
+            given = {k[len(prefix):]: p.value for k, p in cfg.params.items() if k.startswith(prefix)}
+            assert '/' not in ''.join(given), given   # no nested names but the dicts
+            res = resolve_params(given)
+            assert not res.errors and not res.warnings, (path, res.errors, res.warnings)
+            checked += 1
+    assert checked >= 1
+
+
+
+def test_known_init_poses_is_off_by_default_as_in_mexplore():
+    assert MergeConfig().known_init_poses is False
+    assert resolve_params(shipped_yaml()).config.known_init_poses is False
+
+
+def test_init_pose_params_is_a_deprecated_alias_of_known_init_poses():
+    res = resolve_params({'init_pose_params': True})
+    assert res.config.known_init_poses is True and not res.errors
+    assert len(res.warnings) == 1 and 'deprecated' in res.warnings[0] and '~known_init_poses' in res.warnings[0]
+    res = resolve_params({'init_pose_params': True, 'known_init_poses': False})
+    assert res.config.known_init_poses is False and len(res.warnings) == 1 and 'wins' in res.warnings[0]
+
+
+def test_the_readme_has_the_robotis_gazebo_troubleshooting_entry():
+    with open(os.path.join(REPO, 'README.md')) as f:
+        text = f.read()
+    assert "ROBOTIS's Gazebo" in text and '`~known_init_poses`' in text
+
+
+def test_robotis_mexplore_block_resolves_with_only_the_confidence_warning():
+    """The parameters turtlebot3_slam's multi_map_merge.launch gives m-explore's node, given to
+    ours unchanged (only pkg and type changed)."""
+    robotis = {'robot_map_topic': 'map', 'robot_namespace': 'tb3', 'merged_map_topic': 'map',
+               'world_frame': 'map', 'known_init_poses': True, 'merging_rate': 0.5,
+               'discovery_rate': 0.05, 'estimation_rate': 0.1, 'estimation_confidence': 1.0}
+    res = resolve_params(robotis)
+    assert not res.errors
+    assert len(res.warnings) == 1 and '~estimation_confidence' in res.warnings[0]
+    c = res.config
+    assert (c.map_topic, c.robot_namespace_pattern) == ('map', 'tb3*')
+    assert (c.merged_map_topic, c.merged_map_frame) == ('map', 'map')
+    assert (c.merge_rate, c.discovery_rate, c.estimation_rate, c.known_init_poses) == (0.5, 0.05, 0.1, True)
+    assert c.min_inlier_ratio == MergeConfig().min_inlier_ratio   # estimation_confidence maps to nothing
