@@ -23,8 +23,10 @@ GMAPPING_SRC := $(abspath $(CURDIR)/../shared/gmapping)
 GMAPPING_WS  ?= $(WS)/gmapping_ws
 # Tests, demo and bench start private masters on this machine only: every process names itself
 # by the loopback address, so nothing depends on the machine's hostname resolving.
+# ROS_PORT: the port of a master that commands here start (two clones on one machine: two ports).
+ROS_PORT ?= 11311
 ROS_ENV := source $(SETUP) && { [ ! -f $(GMAPPING_WS)/devel/setup.bash ] || source $(GMAPPING_WS)/devel/setup.bash --extend; } && export ROS_HOME=$(WS)/ros_home ROS_LOG_DIR=$(WS)/ros_home/log \
-  ROS_IP=127.0.0.1 ROS_MASTER_URI=http://127.0.0.1:11311 && unset ROS_HOSTNAME
+  ROS_IP=127.0.0.1 ROS_MASTER_URI=http://127.0.0.1:$(ROS_PORT) && unset ROS_HOSTNAME
 
 .PHONY: deps build gmapping test unit demo bench clean setup-path test-focal lint
 
