@@ -104,9 +104,13 @@ def _matrix(A):
     return None if A is None else [[_f(v) for v in row] for row in np.asarray(A)]
 
 
-def _attempts(m):
-    """{(parent, child): the pair's last estimate} of a merger."""
-    return m._attempts
+def _pair_results(m):
+    """{(parent, child): the pair's last result} of a merger (under its names before and after
+    the renames)."""
+    for name in ('_results', '_attempts'):
+        if hasattr(m, name):
+            return getattr(m, name)
+    raise AttributeError('no pair results in %r' % m)
 
 
 def pair_record(key, r):
@@ -132,7 +136,7 @@ def placement_record(name, p):
 
 def cycle_record(m, events):
     merged = m.compose()
-    return {'pairs': [pair_record(k, r) for k, r in sorted(_attempts(m).items())],
+    return {'pairs': [pair_record(k, r) for k, r in sorted(_pair_results(m).items())],
             'placements': [placement_record(n, p) for n, p in sorted(m.placements().items())],
             'events': [e for e in events],
             'composite': None if merged is None else {

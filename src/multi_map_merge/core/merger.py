@@ -27,7 +27,7 @@ from .composite import Lattice, Patch, composite, lattice_for, warp_patch
 from .config import MergeConfig
 from .grid import DEFAULT_FREE_THRESH, DEFAULT_OCC_THRESH, Grid, rescale
 from .links import Edge
-from .pair import PairEstimate, estimate_pair
+from .pair import PairResult, align_pair
 from .placement import Placement
 from .transforms import image_to_pose, se2, xyyaw
 from .workers import PairWorkers
@@ -62,7 +62,7 @@ class RobotStatus:
     merged: bool
     reference: bool
     placement: Optional[Placement]
-    last_attempt: Optional[PairEstimate] = None
+    last_attempt: Optional[PairResult] = None
     last_attempt_with: str = ''
     error: str = ''
     linked_to: Tuple[str, ...] = ()   # robots it has verified links with
@@ -81,7 +81,7 @@ class MapMerger:
         self._workers = PairWorkers(c)   # crops and features of the maps, the worker pool
         self._edges: Dict[Tuple[str, str], Edge] = {}
         self._tried: Dict[Tuple[str, str], Tuple[int, int]] = {}
-        self._attempts: Dict[Tuple[str, str], PairEstimate] = {}
+        self._results: Dict[Tuple[str, str], PairResult] = {}
         self._placements: Dict[str, Placement] = {}
         self._patches: Dict[str, Tuple[tuple, Optional[Patch]]] = {}
         self._errors: Dict[str, str] = {}
@@ -170,7 +170,7 @@ class MapMerger:
         with self._lock:
             self._edges.clear()
             self._tried.clear()
-            self._attempts.clear()
+            self._results.clear()
             self._placements.clear()
             self._patches.clear()
 
@@ -197,9 +197,9 @@ class MapMerger:
         todo = self._pairs(maps, ref)
         # (1) AKAZE features of the maps that changed, (2) match, (3) rigid RANSAC + inlier
         # ratio, (4) verify on the grids and refine: every pair in the worker processes
-        estimates = self._workers.estimate_pairs(maps, todo)
+        results = self._workers.align_pairs(maps, todo)
         # (4) keep each pair's link if verified and more reliable than the kept one
-        for (a, b), r in zip(todo, estimates):
+        for (a, b), r in zip(todo, results):
             self._keep(maps[a], maps[b], r)
         # (4) place every robot through its most reliable links; (6) that is its TF
         return events + self._place(maps, ref)
@@ -242,7 +242,7 @@ class MapMerger:
             out = {}
             for n in sorted(set(self._maps) | set(self._errors)):
                 last, other = None, ''
-                for (a, b), e in self._attempts.items():
+                for (a, b), e in self._results.items():
                     if n in (a, b) and (last is None or e.stamp > last.stamp):
                         last, other = e, (b if a == n else a)
                 pl = self._placements.get(n)
@@ -324,14 +324,14 @@ class MapMerger:
                     out.append(key)
         return out
 
-    def _keep(self, pa: RobotMap, ch: RobotMap, r: PairEstimate) -> None:
-        """(4) keep the pair's estimate if it is verified and replaces the kept link
+    def _keep(self, pa: RobotMap, ch: RobotMap, r: PairResult) -> None:
+        """(4) keep the pair's result if it is verified and replaces the kept link
         (:func:`links.replacement`: the paper's more-reliable rule, refined)."""
         key = (pa.name, ch.name)
         r.stamp = time.time()
         with self._lock:
             self._tried[key] = (pa.version, ch.version)
-            self._attempts[key] = r
+            self._results[key] = r
             old = self._edges.get(key)
         if not r.accepted:
             return
@@ -348,9 +348,10 @@ class MapMerger:
                                     time.time(), r.overlap)
             self.state_version += 1
 
-    def estimate_grids(self, pa: RobotMap, ch: RobotMap, seed: int = 0) -> PairEstimate:
-        """Steps (2)-(4) for one pair, here in this process: cells of ``ch`` -> cells of ``pa``."""
-        return estimate_pair(self.config, self._workers.input(pa), self._workers.input(ch), seed)
+    def align_pair(self, pa: RobotMap, ch: RobotMap, seed: int = 0) -> PairResult:
+        """Steps (2)-(4) for one pair, here in this process (:func:`pair.align_pair`): cells of
+        ``ch`` -> cells of ``pa``."""
+        return align_pair(self.config, self._workers.input(pa), self._workers.input(ch), seed)
 
     def _place(self, maps: Dict[str, RobotMap], ref: str) -> List[str]:
         """Place every robot from the verified links (see :mod:`placement`) and keep, per

@@ -126,7 +126,7 @@ def test_keeps_most_reliable_transform(intel):
     m.update_map('b', ps[1][0])
     m.estimate()
     kept = m.placements()['b']
-    link, first = m._edges[('a', 'b')], m._attempts[('a', 'b')]
+    link, first = m._edges[('a', 'b')], m._results[('a', 'b')]
     # a new version of b's map, one free cell a little less sure (still free): the pair is
     # estimated again on the same grids, and its estimate is no more reliable than the kept
     # link (a byte-identical map would not even be estimated again)
@@ -135,7 +135,7 @@ def test_keeps_most_reliable_transform(intel):
     data[r, c] = 1
     m.update_map('b', Grid(data, 0.05, ps[1][0].origin))
     m.estimate()
-    again = m._attempts[('a', 'b')]
+    again = m._results[('a', 'b')]
     assert again is not first and again.accepted
     assert again.inlier_ratio <= link.inlier_ratio + m.config.replace_margin
     # so the kept link and the placement made of it stay, nothing moves
@@ -224,7 +224,7 @@ def test_a_pair_estimated_on_the_known_crops_is_the_pair_of_the_whole_grids(inte
     grids' cells: on gmapping-like canvases (the pieces sit in 150 cells of unknown, at
     different offsets) the transform equals the one estimated on the whole grids, and the
     truth."""
-    from multi_map_merge.core.pair import PairInput, compute_features, crop_known, estimate_pair
+    from multi_map_merge.core.pair import PairInput, align_pair, compute_features, crop_known
     from multi_map_merge.core.transforms import image_to_pose
     ps = strip_pieces(intel, [(0, 0, 0), (3, -2, 2.0), (-4, 1, -2.5)])
     cfg = MergeConfig(workers=1)
@@ -244,8 +244,8 @@ def test_a_pair_estimated_on_the_known_crops_is_the_pair_of_the_whole_grids(inte
                                  'crop', offset))
     assert len(whole[1].features) == len(cropped[1].features) > 100
     assert np.allclose(whole[1].features.points, cropped[1].features.points + np.array(cropped[1].offset))
-    a = estimate_pair(cfg, whole[0], whole[1], 7)
-    b = estimate_pair(cfg, cropped[0], cropped[1], 7)
+    a = align_pair(cfg, whole[0], whole[1], 7)
+    b = align_pair(cfg, cropped[0], cropped[1], 7)
     assert a.accepted and b.accepted
     Ta, Tb = (image_to_pose(r.A, grids[0].resolution, grids[0].origin, grids[1].resolution, grids[1].origin)
               for r in (a, b))

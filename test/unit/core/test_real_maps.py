@@ -106,7 +106,7 @@ def test_tb3_house_trap_with_initial_poses(shared_data):
     assert math.hypot(x, y) < 0.5 and abs(yaw) < math.radians(3)
     st = m.status()
     assert st['tb3_1'].linked_to == ('tb3_3',) and not st['tb3_1'].merged
-    reasons = [a.reason for (a_, b_), a in m._attempts.items() if 'tb3_0' in (a_, b_) and 'tb3_3' in (a_, b_)]
+    reasons = [a.reason for (a_, b_), a in m._results.items() if 'tb3_0' in (a_, b_) and 'tb3_3' in (a_, b_)]
     assert reasons and 'contradicts initial poses' in reasons[0]
     # trusting the priors places the other half at its start pose: the whole house is covered
     m = house(shared_data, initial_poses=pri, trust_initial_poses=True)
