@@ -105,8 +105,10 @@ def _matrix(A):
 
 
 def _pair_results(m):
-    """{(parent, child): the pair's last result} of a merger (under its names before and after
-    the renames)."""
+    """{(parent, child): the pair's last result} of a merger (its public accessor, or the
+    attribute it read before there was one, under its names before and after the renames)."""
+    if hasattr(m, 'pair_results'):
+        return m.pair_results()
     for name in ('_results', '_attempts'):
         if hasattr(m, name):
             return getattr(m, name)

@@ -230,6 +230,18 @@ class MapMerger:
         with self._lock:
             return dict(self._placements)
 
+    def links(self) -> Dict[Tuple[str, str], Edge]:
+        """The verified links kept, per pair (parent, child): what the placements are made of
+        (an :class:`Edge` maps metres of the child's frame to the parent's)."""
+        with self._lock:
+            return dict(self._edges)
+
+    def pair_results(self) -> Dict[Tuple[str, str], PairResult]:
+        """The last result of every pair aligned, per pair (parent, child): accepted or not,
+        with its scores and the reason it was refused (what the status shows per robot)."""
+        with self._lock:
+            return dict(self._results)
+
     def frames(self) -> Dict[str, str]:
         """Map frame id of every robot (from its grid's header)."""
         with self._lock:
