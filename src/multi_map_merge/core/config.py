@@ -58,10 +58,16 @@ class MergeConfig:
     # --- speed ---
     workers: int = 0                         # estimation processes; 0 = one per core, 1 = inline
     # --- persistence (node only) ---
-    transforms_file: str = ''                # '' = do not persist
+    state_file: str = ''                     # the merger's state file (core/state.py); '' = none
 
     # parameters renamed since they were published: old name -> new name (the old one is still read)
-    RENAMED: ClassVar[Dict[str, str]] = {'min_reliability': 'min_inlier_ratio'}
+    RENAMED: ClassVar[Dict[str, str]] = {'min_reliability': 'min_inlier_ratio',
+                                         'transforms_file': 'state_file'}
+
+    @property
+    def transforms_file(self) -> str:
+        """The former name of :attr:`state_file`, read by ros/node.py until it says state_file."""
+        return self.state_file
 
     @classmethod
     def from_dict(cls, d: Dict[str, Any]) -> 'MergeConfig':

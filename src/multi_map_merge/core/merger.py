@@ -29,6 +29,7 @@ from .grid import DEFAULT_FREE_THRESH, DEFAULT_OCC_THRESH, Grid, rescale
 from .links import Edge
 from .pair import PairResult, align_pair
 from .placement import Placement
+from .state import placement_dict
 from .transforms import image_to_pose, se2, xyyaw
 from .workers import PairWorkers
 
@@ -263,15 +264,14 @@ class MapMerger:
             return out
 
     def export_state(self) -> Dict:
-        """Verified links and placements as plain data (see :mod:`persist`)."""
+        """Verified links and placements as plain data: what the state file holds
+        (:mod:`state`)."""
         with self._lock:
             edges = [dict(zip(('x', 'y', 'yaw'), xyyaw(e.T)), parent=e.parent, child=e.child,
                           inlier_ratio=float(e.inlier_ratio), agreement=float(e.agreement),
                           inliers=int(e.inliers), matches=int(e.matches))
                      for e in self._edges.values()]
-            placements = {n: dict(zip(('x', 'y', 'yaw'), xyyaw(p.T)), inlier_ratio=float(p.inlier_ratio),
-                                  agreement=float(p.agreement), via=p.via, chain=list(p.path))
-                          for n, p in self._placements.items()}
+            placements = {n: placement_dict(p) for n, p in self._placements.items()}
             return {'reference': self._reference_locked(), 'edges': edges, 'placements': placements}
 
     def restore_state(self, state: Dict) -> int:

@@ -182,7 +182,7 @@ RULES: Dict[str, Tuple[Callable[[Any], Any], str]] = {
     'trust_initial_poses': (_bool, 'true or false'),
     'known_init_poses': (_bool, 'true or false'),
     'workers': _int(0),
-    'transforms_file': _string(False),
+    'state_file': _string(False),
 }
 
 

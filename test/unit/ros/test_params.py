@@ -217,3 +217,10 @@ def test_robotis_mexplore_block_resolves_with_only_the_confidence_warning():
     assert (c.merged_map_topic, c.merged_map_frame) == ('map', 'map')
     assert (c.merge_rate, c.discovery_rate, c.estimation_rate, c.known_init_poses) == (0.5, 0.05, 0.1, True)
     assert c.min_inlier_ratio == MergeConfig().min_inlier_ratio   # estimation_confidence maps to nothing
+
+
+def test_the_former_name_of_state_file_is_still_read():
+    res = resolve_params({'transforms_file': '/tmp/links.yaml'})
+    assert res.config.state_file == '/tmp/links.yaml' and not res.warnings and not res.errors
+    assert res.notes == ["~transforms_file read as ~state_file (its former name): '/tmp/links.yaml'"]
+    assert res.config.transforms_file == '/tmp/links.yaml'   # (the attribute ros/node.py reads)
