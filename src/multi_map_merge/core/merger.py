@@ -29,8 +29,8 @@ from .grid import DEFAULT_FREE_THRESH, DEFAULT_OCC_THRESH, Grid, rescale
 from .links import Edge
 from .pair import PairResult, align_pair
 from .placement import Placement
-from .state import placement_dict
-from .transforms import image_to_pose, se2, xyyaw
+from .state import link_dict, link_from_dict, placement_dict
+from .transforms import image_to_pose
 from .workers import PairWorkers
 
 
@@ -267,26 +267,20 @@ class MapMerger:
         """Verified links and placements as plain data: what the state file holds
         (:mod:`state`)."""
         with self._lock:
-            edges = [dict(zip(('x', 'y', 'yaw'), xyyaw(e.T)), parent=e.parent, child=e.child,
-                          inlier_ratio=float(e.inlier_ratio), agreement=float(e.agreement),
-                          inliers=int(e.inliers), matches=int(e.matches))
-                     for e in self._edges.values()]
+            edges = [link_dict(e) for e in self._edges.values()]
             placements = {n: placement_dict(p) for n, p in self._placements.items()}
             return {'reference': self._reference_locked(), 'edges': edges, 'placements': placements}
 
     def restore_state(self, state: Dict) -> int:
         """Take links saved by :meth:`export_state`; each is verified again on the grids before
         it is used. Returns how many were taken. Links saved under another reference robot
-        are still valid (they are pairwise). Files written before the inlier ratio had its name
-        say ``reliability``: both are read."""
+        are still valid (they are pairwise); a link that is not one (:func:`state.link_from_dict`)
+        is skipped."""
         n = 0
         with self._lock:
             for d in state.get('edges', []) or []:
                 try:
-                    ratio = d['inlier_ratio'] if 'inlier_ratio' in d else d['reliability']
-                    e = Edge(str(d['parent']), str(d['child']), se2(float(d['x']), float(d['y']), float(d['yaw'])),
-                             float(ratio), float(d['agreement']), int(d['inliers']),
-                             int(d.get('matches', 0)), time.time())
+                    e = link_from_dict(d, time.time())
                 except (KeyError, TypeError, ValueError):
                     continue
                 if all(math.isfinite(v) for v in e.T.ravel()):

@@ -1,5 +1,6 @@
 """The merger's state file (``state_file``): its verified links and, for people, the placements
-made of them, saved to YAML on change and read back at start; and a placement as plain data.
+made of them, saved to YAML on change and read back at start; a link and a placement as plain
+data.
 
 On reload the links are *restored, not trusted*: each is verified again on the robots' grids
 when both maps have arrived, and dropped if it no longer agrees. The file is written
@@ -17,8 +18,28 @@ from typing import Any, Dict
 
 import yaml
 
+from .links import Edge
 from .placement import Placement
-from .transforms import xyyaw
+from .transforms import se2, xyyaw
+
+
+def link_dict(e: Edge) -> Dict[str, Any]:
+    """A verified link as plain data (the state file's ``edges``): x, y, yaw (metres, radians:
+    the pose of the child's map frame in the parent's), parent, child, inlier_ratio,
+    agreement, inliers, matches."""
+    x, y, yaw = xyyaw(e.T)
+    return {'x': float(x), 'y': float(y), 'yaw': float(yaw), 'parent': e.parent, 'child': e.child,
+            'inlier_ratio': float(e.inlier_ratio), 'agreement': float(e.agreement),
+            'inliers': int(e.inliers), 'matches': int(e.matches)}
+
+
+def link_from_dict(d: Dict[str, Any], stamp: float) -> Edge:
+    """The link of :func:`link_dict`'s data (received at ``stamp``); files written before the
+    inlier ratio had its name say ``reliability``: both are read. Raises KeyError, TypeError
+    or ValueError when ``d`` is not such data."""
+    ratio = d['inlier_ratio'] if 'inlier_ratio' in d else d['reliability']
+    return Edge(str(d['parent']), str(d['child']), se2(float(d['x']), float(d['y']), float(d['yaw'])),
+                float(ratio), float(d['agreement']), int(d['inliers']), int(d.get('matches', 0)), stamp)
 
 
 def placement_dict(pl: Placement) -> Dict[str, Any]:
