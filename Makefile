@@ -30,16 +30,21 @@ ROS_ENV := source $(SETUP) && { [ ! -f $(GMAPPING_WS)/devel/setup.bash ] || sour
 
 .PHONY: deps build gmapping test unit demo bench clean setup-path test-focal lint
 
+# $(call apt_install,PACKAGES): apt-get installs those of PACKAGES dpkg does not list as installed
+define apt_install
+@missing=$$(for p in $(1); do dpkg-query -W -f='$${Status}\n' $$p 2>/dev/null | grep -q 'install ok installed' || echo $$p; done); \
+if [ -n "$$missing" ]; then \
+  echo "installing:" $$missing; \
+  apt-get update -q >/dev/null && apt-get install -y -q --no-install-recommends $$missing >/dev/null || exit 1; \
+fi
+endef
+
 # the stamp names the list: a package added here is installed on the next run
 DEPS_OK := $(WS)/.deps-ok-$(shell echo '$(APT_PKGS)' | md5sum | cut -c1-8)
 deps: $(DEPS_OK)
 $(DEPS_OK):
 	@mkdir -p $(WS)
-	@missing=$$(for p in $(APT_PKGS); do dpkg-query -W -f='$${Status}\n' $$p 2>/dev/null | grep -q 'install ok installed' || echo $$p; done); \
-	if [ -n "$$missing" ]; then \
-	  echo "installing:" $$missing; \
-	  apt-get update -q >/dev/null && apt-get install -y -q --no-install-recommends $$missing >/dev/null || exit 1; \
-	fi
+	$(call apt_install,$(APT_PKGS))
 	@touch $@
 
 build: deps
@@ -78,9 +83,9 @@ clean:
 
 # Speed and memory against m-explore on the same maps (not part of `make test`): prints a table,
 # writes bench/results/{bench.json,bench.png,live.json}. m-explore is measured when ../shared is present.
+# (python3-matplotlib, for its plot, is one of APT_PKGS: build installs it)
 bench: build
-	@$(ROS_ENV) && cd $(CURDIR) && (dpkg-query -W python3-matplotlib >/dev/null 2>&1 || apt-get install -y -q python3-matplotlib >/dev/null) && \
-	python3 bench/run_bench.py && python3 bench/live_gap.py
+	@$(ROS_ENV) && cd $(CURDIR) && python3 bench/run_bench.py && python3 bench/live_gap.py
 
 # The workspace's setup.bash, for the README's `rosrun multi_map_merge ...` commands in a shell:
 #   make build && source "$(make -s setup-path)"
@@ -123,11 +128,7 @@ lint: $(RUFF)
 
 $(RUFF):
 	@mkdir -p $(WS)
-	@missing=$$(for p in $(LINT_PKGS); do dpkg-query -W -f='$${Status}\n' $$p 2>/dev/null | grep -q 'install ok installed' || echo $$p; done); \
-	if [ -n "$$missing" ]; then \
-	  echo "installing:" $$missing; \
-	  apt-get update -q >/dev/null && apt-get install -y -q --no-install-recommends $$missing >/dev/null || exit 1; \
-	fi
+	$(call apt_install,$(LINT_PKGS))
 	@rm -rf $(WS)/ruff-$(RUFF_VERSION)
 	@/usr/bin/python3 -m venv $(WS)/ruff-$(RUFF_VERSION) && \
 	  $(WS)/ruff-$(RUFF_VERSION)/bin/pip install -q ruff==$(RUFF_VERSION) \

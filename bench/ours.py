@@ -8,7 +8,7 @@
 SPEC: {"paths": [map yaml...], "truth": [3x3 pose of map k in map 0's frame] or null,
 "reps": R, "pairs": [[a, b], ...]}. Measures, with the project's defaults (MergeConfig()):
   features_ms   FeatureExtractor on one map's levels (median over the maps of the pairs, R reps)
-  pair_ms       MapMerger.estimate_grids(a, b): matching + RANSAC + verification + ICP, in this
+  pair_ms       MapMerger.align_pair(a, b): matching + RANSAC + verification + ICP, in this
                 process (median over the pairs, R reps)
   pool_start_ms starting the merger's worker pool (once per node; not part of cold_ms)
   cold_ms       estimate() of a new MapMerger holding every map (features + every pair + placement,
@@ -223,7 +223,7 @@ def main():
         m0._workers.features_of(rms[b])
         for _ in range(reps):
             t = time.perf_counter()
-            m0.estimate_grids(rms[a], rms[b])
+            m0.align_pair(rms[a], rms[b])
             pair.append(time.perf_counter() - t)
 
     # The node starts its worker pool once, at its first cycle: start it (and import the

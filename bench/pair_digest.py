@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Proof that a change kept the merger's behaviour: a JSON digest of every pair estimate.
+"""Proof that a change kept the merger's behaviour: a JSON digest of every pair result.
 
     python3 bench/pair_digest.py -o /tmp/digest_before.json     # before the change
     python3 bench/pair_digest.py -o /tmp/digest_after.json      # after it
@@ -8,10 +8,10 @@
 The 13 buildings' maps of ``../shared/data`` (the 11 ground-truth maps and the two AWS maps)
 are each cut into overlapping robots' maps at known random rigid poses (``split_rects`` into
 4, 4 windows of half of it, 6 windows of 35% of it); every robot's map is given to a fresh
-``MapMerger`` and one estimation cycle runs: every pair of robots is estimated. Then one
+``MapMerger`` and one estimation cycle runs: every pair of robots is aligned. Then one
 robot's map grows (a larger cut at the same pose) and a second cycle runs, so the keep / switch
 rules and the placement hysteresis act on kept links. The digest holds, per pair and cycle,
-the estimate (the transform between cells, matches, inliers, inlier ratio, agreement, overlap,
+its result (the transform between cells, matches, inliers, inlier ratio, agreement, overlap,
 accepted, the reason, the runner-up), every placement (pose, chain, inlier ratio, agreement)
 and a checksum of the composed map. Floats are written exactly (``repr``): any change of
 behaviour changes the file.
@@ -104,9 +104,15 @@ def _matrix(A):
     return None if A is None else [[_f(v) for v in row] for row in np.asarray(A)]
 
 
-def _attempts(m):
-    """{(parent, child): the pair's last estimate} of a merger."""
-    return m._attempts
+def _pair_results(m):
+    """{(parent, child): the pair's last result} of a merger (its public accessor, or the
+    attribute it read before there was one, under its names before and after the renames)."""
+    if hasattr(m, 'pair_results'):
+        return m.pair_results()
+    for name in ('_results', '_attempts'):
+        if hasattr(m, name):
+            return getattr(m, name)
+    raise AttributeError('no pair results in %r' % m)
 
 
 def pair_record(key, r):
@@ -132,7 +138,7 @@ def placement_record(name, p):
 
 def cycle_record(m, events):
     merged = m.compose()
-    return {'pairs': [pair_record(k, r) for k, r in sorted(_attempts(m).items())],
+    return {'pairs': [pair_record(k, r) for k, r in sorted(_pair_results(m).items())],
             'placements': [placement_record(n, p) for n, p in sorted(m.placements().items())],
             'events': [e for e in events],
             'composite': None if merged is None else {
@@ -146,7 +152,7 @@ def run_case(world, case, rects, poses, workers):
     for n, rect, pose in zip(names, rects, poses):
         m.update_map(n, synth.cut_piece(world, rect, pose, frame_id=n + '/map')[0])
     first = cycle_record(m, m.estimate())
-    # robot 1's map grows (the same frame, a larger cut): its pairs are estimated again
+    # robot 1's map grows (the same frame, a larger cut): its pairs are aligned again
     m.update_map(names[1], synth.cut_piece(world, grown(rects[1], world), poses[1], frame_id=names[1] + '/map')[0])
     second = cycle_record(m, m.estimate())
     truth = [_matrix(synth.cut_piece(world, r, p)[1]) for r, p in zip(rects[:1], poses[:1])]
@@ -173,7 +179,7 @@ def main(argv=None):
             rec['building'] = name
             out.append(rec)
             n = sum(len(c['pairs']) for c in rec['cycles'])
-            print('%-16s %-9s %2d pair estimates, %d placed  (%.0f s)'
+            print('%-16s %-9s %2d pair results, %d placed  (%.0f s)'
                   % (name, case, n, len(rec['cycles'][-1]['placements']), time.time() - t0), flush=True)
     with open(a.output, 'w') as f:
         json.dump(out, f, indent=1, sort_keys=True)

@@ -33,6 +33,16 @@ CONFIGS = {
 }
 
 
+def profiled(fn):
+    """(cProfile of one call of ``fn``, its wall seconds)."""
+    prof = cProfile.Profile()
+    t = time.perf_counter()
+    prof.enable()
+    fn()
+    prof.disable()
+    return prof, time.perf_counter() - t
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     ap.add_argument('configs', nargs='*', default=['edmonton4', 'intel16'], choices=sorted(CONFIGS))
@@ -47,18 +57,8 @@ def main():
         m = MapMerger(MergeConfig(workers=1))
         for k, g in enumerate(grids):
             m.update_map('r%02d' % k, g)
-        prof = cProfile.Profile()
-        t = time.perf_counter()
-        prof.enable()
-        m.estimate()
-        prof.disable()
-        wall = time.perf_counter() - t
-        t = time.perf_counter()
-        prof2 = cProfile.Profile()
-        prof2.enable()
-        m.compose()
-        prof2.disable()
-        wall_c = time.perf_counter() - t
+        prof, wall = profiled(m.estimate)
+        prof2, wall_c = profiled(m.compose)
         buf = io.StringIO()
         buf.write('%s: %d robots, cold estimate inline %.2f s (profiled), placed %d; compose %.3f s\n'
                   % (name, len(grids), wall, len(m.placements()) - 1, wall_c))

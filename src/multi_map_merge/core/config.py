@@ -58,18 +58,33 @@ class MergeConfig:
     # --- speed ---
     workers: int = 0                         # estimation processes; 0 = one per core, 1 = inline
     # --- persistence (node only) ---
-    transforms_file: str = ''                # '' = do not persist
+    state_file: str = ''                     # the merger's state file (core/state.py); '' = none
 
     # parameters renamed since they were published: old name -> new name (the old one is still read)
-    RENAMED: ClassVar[Dict[str, str]] = {'min_reliability': 'min_inlier_ratio'}
+    RENAMED: ClassVar[Dict[str, str]] = {'min_reliability': 'min_inlier_ratio',
+                                         'transforms_file': 'state_file'}
+
+    @property
+    def transforms_file(self) -> str:
+        """The former name of :attr:`state_file`, read by ros/node.py until it says state_file."""
+        return self.state_file
+
+    @classmethod
+    def former_name_wins(cls, given: Dict[str, Any], old: str) -> bool:
+        """Whether ``given`` (parameters by name) is read by the former name ``old`` of a
+        renamed parameter (:attr:`RENAMED`): it is given, and the new name is absent or at its
+        default. config/map_merge.yaml lists every parameter at its default, so a launch file
+        that loads it and sets a former name means the former name's value."""
+        new = cls.RENAMED[old]
+        return old in given and (given.get(new) is None or given[new] == getattr(cls(), new))
 
     @classmethod
     def from_dict(cls, d: Dict[str, Any]) -> 'MergeConfig':
         """Build from a mapping, ignoring unknown keys; values are converted to each field's type.
-        A parameter's old name (:attr:`RENAMED`) is read when its new name is absent."""
+        A parameter's former name (:attr:`RENAMED`) is read as :meth:`former_name_wins` says."""
         d = dict(d)
         for old, new in cls.RENAMED.items():
-            if old in d and d.get(new) is None:
+            if cls.former_name_wins(d, old):
                 d[new] = d[old]
         kw = {}
         for f in fields(cls):

@@ -1,4 +1,4 @@
-"""Verified links between robots' map frames, and when a new estimate replaces a kept link.
+"""Verified links between robots' map frames, and when a pair's new result replaces a kept link.
 
 The paper keeps the most reliable transform (the highest inlier ratio). Two refinements of
 that rule, because inlier ratios fall as maps grow (more features, more outliers):
@@ -19,7 +19,7 @@ from typing import Callable, Optional, Tuple
 import numpy as np
 
 from .config import MergeConfig
-from .pair import PairEstimate
+from .pair import PairResult
 from .transforms import inverse, pose_distance
 
 # a link re-estimated within this of the kept one (metres, radians) is the same link refined
@@ -51,9 +51,9 @@ class Edge:
         return self.T if parent == self.parent else inverse(self.T)
 
 
-def replacement(config: MergeConfig, old: Optional[Edge], T: np.ndarray, r: PairEstimate,
+def replacement(config: MergeConfig, old: Optional[Edge], T: np.ndarray, r: PairResult,
                 agreement_now: Callable[[], float]) -> Optional[Tuple[float, int]]:
-    """Whether an accepted estimate ``r`` (pose ``T`` in metres) replaces the kept link ``old``:
+    """Whether an accepted pair result ``r`` (pose ``T`` in metres) replaces the kept link ``old``:
     None to keep ``old``, else the (inlier ratio, inliers) the new link is kept with.
     ``agreement_now()``: the kept link's verification score on the pair's current grids (its
     recorded one was measured on the grids of its time); called only when needed."""

@@ -27,9 +27,10 @@ from .composite import Lattice, Patch, composite, lattice_for, warp_patch
 from .config import MergeConfig
 from .grid import DEFAULT_FREE_THRESH, DEFAULT_OCC_THRESH, Grid, rescale
 from .links import Edge
-from .pair import PairEstimate, estimate_pair
+from .pair import PairResult, align_pair
 from .placement import Placement
-from .transforms import image_to_pose, se2, xyyaw
+from .state import link_dict, link_from_dict, placement_dict
+from .transforms import image_to_pose
 from .workers import PairWorkers
 
 
@@ -62,7 +63,7 @@ class RobotStatus:
     merged: bool
     reference: bool
     placement: Optional[Placement]
-    last_attempt: Optional[PairEstimate] = None
+    last_attempt: Optional[PairResult] = None
     last_attempt_with: str = ''
     error: str = ''
     linked_to: Tuple[str, ...] = ()   # robots it has verified links with
@@ -81,7 +82,7 @@ class MapMerger:
         self._workers = PairWorkers(c)   # crops and features of the maps, the worker pool
         self._edges: Dict[Tuple[str, str], Edge] = {}
         self._tried: Dict[Tuple[str, str], Tuple[int, int]] = {}
-        self._attempts: Dict[Tuple[str, str], PairEstimate] = {}
+        self._results: Dict[Tuple[str, str], PairResult] = {}
         self._placements: Dict[str, Placement] = {}
         self._patches: Dict[str, Tuple[tuple, Optional[Patch]]] = {}
         self._errors: Dict[str, str] = {}
@@ -170,7 +171,7 @@ class MapMerger:
         with self._lock:
             self._edges.clear()
             self._tried.clear()
-            self._attempts.clear()
+            self._results.clear()
             self._placements.clear()
             self._patches.clear()
 
@@ -197,9 +198,9 @@ class MapMerger:
         todo = self._pairs(maps, ref)
         # (1) AKAZE features of the maps that changed, (2) match, (3) rigid RANSAC + inlier
         # ratio, (4) verify on the grids and refine: every pair in the worker processes
-        estimates = self._workers.estimate_pairs(maps, todo)
+        results = self._workers.align_pairs(maps, todo)
         # (4) keep each pair's link if verified and more reliable than the kept one
-        for (a, b), r in zip(todo, estimates):
+        for (a, b), r in zip(todo, results):
             self._keep(maps[a], maps[b], r)
         # (4) place every robot through its most reliable links; (6) that is its TF
         return events + self._place(maps, ref)
@@ -230,6 +231,18 @@ class MapMerger:
         with self._lock:
             return dict(self._placements)
 
+    def links(self) -> Dict[Tuple[str, str], Edge]:
+        """The verified links kept, per pair (parent, child): what the placements are made of
+        (an :class:`Edge` maps metres of the child's frame to the parent's)."""
+        with self._lock:
+            return dict(self._edges)
+
+    def pair_results(self) -> Dict[Tuple[str, str], PairResult]:
+        """The last result of every pair aligned, per pair (parent, child): accepted or not,
+        with its scores and the reason it was refused (what the status shows per robot)."""
+        with self._lock:
+            return dict(self._results)
+
     def frames(self) -> Dict[str, str]:
         """Map frame id of every robot (from its grid's header)."""
         with self._lock:
@@ -242,7 +255,7 @@ class MapMerger:
             out = {}
             for n in sorted(set(self._maps) | set(self._errors)):
                 last, other = None, ''
-                for (a, b), e in self._attempts.items():
+                for (a, b), e in self._results.items():
                     if n in (a, b) and (last is None or e.stamp > last.stamp):
                         last, other = e, (b if a == n else a)
                 pl = self._placements.get(n)
@@ -251,30 +264,23 @@ class MapMerger:
             return out
 
     def export_state(self) -> Dict:
-        """Verified links and placements as plain data (see :mod:`persist`)."""
+        """Verified links and placements as plain data: what the state file holds
+        (:mod:`state`)."""
         with self._lock:
-            edges = [dict(zip(('x', 'y', 'yaw'), xyyaw(e.T)), parent=e.parent, child=e.child,
-                          inlier_ratio=float(e.inlier_ratio), agreement=float(e.agreement),
-                          inliers=int(e.inliers), matches=int(e.matches))
-                     for e in self._edges.values()]
-            placements = {n: dict(zip(('x', 'y', 'yaw'), xyyaw(p.T)), inlier_ratio=float(p.inlier_ratio),
-                                  agreement=float(p.agreement), via=p.via, chain=list(p.path))
-                          for n, p in self._placements.items()}
+            edges = [link_dict(e) for e in self._edges.values()]
+            placements = {n: placement_dict(p) for n, p in self._placements.items()}
             return {'reference': self._reference_locked(), 'edges': edges, 'placements': placements}
 
     def restore_state(self, state: Dict) -> int:
         """Take links saved by :meth:`export_state`; each is verified again on the grids before
         it is used. Returns how many were taken. Links saved under another reference robot
-        are still valid (they are pairwise). Files written before the inlier ratio had its name
-        say ``reliability``: both are read."""
+        are still valid (they are pairwise); a link that is not one (:func:`state.link_from_dict`)
+        is skipped."""
         n = 0
         with self._lock:
             for d in state.get('edges', []) or []:
                 try:
-                    ratio = d['inlier_ratio'] if 'inlier_ratio' in d else d['reliability']
-                    e = Edge(str(d['parent']), str(d['child']), se2(float(d['x']), float(d['y']), float(d['yaw'])),
-                             float(ratio), float(d['agreement']), int(d['inliers']),
-                             int(d.get('matches', 0)), time.time())
+                    e = link_from_dict(d, time.time())
                 except (KeyError, TypeError, ValueError):
                     continue
                 if all(math.isfinite(v) for v in e.T.ravel()):
@@ -324,14 +330,14 @@ class MapMerger:
                     out.append(key)
         return out
 
-    def _keep(self, pa: RobotMap, ch: RobotMap, r: PairEstimate) -> None:
-        """(4) keep the pair's estimate if it is verified and replaces the kept link
+    def _keep(self, pa: RobotMap, ch: RobotMap, r: PairResult) -> None:
+        """(4) keep the pair's result if it is verified and replaces the kept link
         (:func:`links.replacement`: the paper's more-reliable rule, refined)."""
         key = (pa.name, ch.name)
         r.stamp = time.time()
         with self._lock:
             self._tried[key] = (pa.version, ch.version)
-            self._attempts[key] = r
+            self._results[key] = r
             old = self._edges.get(key)
         if not r.accepted:
             return
@@ -348,9 +354,10 @@ class MapMerger:
                                     time.time(), r.overlap)
             self.state_version += 1
 
-    def estimate_grids(self, pa: RobotMap, ch: RobotMap, seed: int = 0) -> PairEstimate:
-        """Steps (2)-(4) for one pair, here in this process: cells of ``ch`` -> cells of ``pa``."""
-        return estimate_pair(self.config, self._workers.input(pa), self._workers.input(ch), seed)
+    def align_pair(self, pa: RobotMap, ch: RobotMap, seed: int = 0) -> PairResult:
+        """Steps (2)-(4) for one pair, here in this process (:func:`pair.align_pair`): cells of
+        ``ch`` -> cells of ``pa``."""
+        return align_pair(self.config, self._workers.input(pa), self._workers.input(ch), seed)
 
     def _place(self, maps: Dict[str, RobotMap], ref: str) -> List[str]:
         """Place every robot from the verified links (see :mod:`placement`) and keep, per

@@ -3,6 +3,10 @@
     merge_maps A.yaml B.yaml ... -o merged.yaml [--transforms T.yaml] [--reference A]
               [--config map_merge.yaml]
 
+``--transforms`` writes the transforms file: every map frame's pose in the merged frame
+(:func:`transforms_report`; ``evaluate_map --transforms`` reads it). It is not the node's
+state file (``~state_file``, :mod:`state`), which holds the verified links between pairs.
+
 Exit status: 0 merged (even if some maps could not be placed: they are listed with
 ``merged: false``), 2 bad arguments or a bad input file (the message names it).
 """
@@ -19,11 +23,15 @@ import yaml
 from .config import MergeConfig
 from .mapio import MapFileError, load_map, save_map
 from .merger import MapMerger
-from .transforms import xyyaw
+from .state import placement_dict
+
+# digits a placement's numbers are written with in the transforms file
+DIGITS = {'x': 6, 'y': 6, 'yaw': 6, 'inlier_ratio': 4, 'agreement': 4}
 
 
 def transforms_report(merger: MapMerger, reference: str, names: List[str]) -> Dict:
-    """The ``--transforms`` document: pose of every map frame in the merged (reference) frame."""
+    """The transforms file (``--transforms``): every map frame's placement in the merged
+    (reference) frame (:func:`state.placement_dict`, rounded), or why it is not merged."""
     placements = merger.placements()
     status = merger.status()
     maps: Dict[str, Dict] = {}
@@ -36,10 +44,8 @@ def transforms_report(merger: MapMerger, reference: str, names: List[str]) -> Di
             why = st.last_attempt.reason if st and st.last_attempt else 'no estimate'
             maps[n] = {'merged': False, 'reason': why}
             continue
-        x, y, yaw = xyyaw(pl.T)
-        maps[n] = {'merged': True, 'x': round(x, 6), 'y': round(y, 6), 'yaw': round(yaw, 6),
-                   'inlier_ratio': round(float(pl.inlier_ratio), 4), 'inliers': int(pl.inliers),
-                   'agreement': round(float(pl.agreement), 4), 'via': pl.via}
+        d = placement_dict(pl)
+        maps[n] = dict(merged=True, **{k: round(v, DIGITS[k]) if k in DIGITS else v for k, v in d.items()})
     return {'reference': reference, 'maps': maps}
 
 
@@ -47,7 +53,9 @@ def main(argv: Optional[List[str]] = None) -> int:
     ap = argparse.ArgumentParser(prog='merge_maps', description=__doc__.split('\n\n')[0])
     ap.add_argument('maps', nargs='+', help='map_server .yaml files, one per robot')
     ap.add_argument('-o', '--output', required=True, help='merged map .yaml to write (+ .pgm)')
-    ap.add_argument('--transforms', help='write each map frame\'s pose in the merged frame here')
+    ap.add_argument('--transforms', metavar='T.yaml',
+                    help='write the transforms file here: each map frame\'s pose in the merged frame '
+                         '(YAML; evaluate_map --transforms reads it)')
     ap.add_argument('--reference', help='file stem of the reference map (default: the first map)')
     ap.add_argument('--config', help='YAML of merger parameters (config/map_merge.yaml keys)')
     a = ap.parse_args(argv)

@@ -22,7 +22,7 @@ from .transforms import apply, image_to_pose, inverse, pose_distance, se2, turn_
 
 
 @dataclass
-class PairEstimate:
+class PairResult:
     """One pair's result: the transform between two grids (cells of the child -> cells of the
     parent) and how well it is supported.
 
@@ -201,23 +201,23 @@ def refined(config: MergeConfig, pa: PairInput, ch: PairInput, A: np.ndarray) ->
 AMBIGUITY_APART = (0.5, math.radians(5.0))
 
 
-def estimate_pair(config: MergeConfig, pa: PairInput, ch: PairInput, seed: int = 0) -> PairEstimate:
+def align_pair(config: MergeConfig, pa: PairInput, ch: PairInput, seed: int = 0) -> PairResult:
     """Cells of ``ch``'s grid -> cells of ``pa``'s grid: (2) match, (3) rigid RANSAC + inlier
     ratio, (4) verification on the grids and ICP refinement. The best-agreeing accepted
     hypothesis is returned, or the best rejected one with its reason (also when a clearly
     different hypothesis verifies nearly as well: ambiguous, see :func:`_check_ambiguity`)."""
-    r = _estimate_crops(config, pa, ch, seed)
+    r = _align_crops(config, pa, ch, seed)
     if r.A is not None:
         r.A = _grid_cells(r.A, pa, ch)
     return r
 
 
-def _estimate_crops(config: MergeConfig, pa: PairInput, ch: PairInput, seed: int) -> PairEstimate:
-    """:func:`estimate_pair` between the crops' cells."""
+def _align_crops(config: MergeConfig, pa: PairInput, ch: PairInput, seed: int) -> PairResult:
+    """:func:`align_pair` between the crops' cells."""
     c = config
     fa, fc = _at_one_scale(c, pa, ch)
     src, dst, unique = matching.match(fc, fa, c.match_candidates, c.match_ratio)
-    r = PairEstimate(None, matches=int(unique.sum()))
+    r = PairResult(None, matches=int(unique.sum()))
     if src.shape[0] < c.min_matches:
         r.reason = 'too few matches (%d < %d)' % (src.shape[0], c.min_matches)
         return r
@@ -241,12 +241,12 @@ def _estimate_crops(config: MergeConfig, pa: PairInput, ch: PairInput, seed: int
         ag, _ = verified(A)
         scored.append((ag, inl, A))
     scored.sort(key=lambda t: (t[0], t[1]), reverse=True)
-    best: Optional[PairEstimate] = None
+    best: Optional[PairResult] = None
     th2 = c.ransac_threshold ** 2
     tried = []
     centre = _known(ch)[1]
     for rank, (ag, inl, A) in enumerate(scored):
-        h = PairEstimate(A, matches=r.matches, inliers=inl)
+        h = PairResult(A, matches=r.matches, inliers=inl)
         # the runner-up is polished only when it scores nearly as well as the best (it may be
         # the right one); so is any clearly different placement that might make the best one
         # ambiguous
@@ -314,7 +314,7 @@ def _same_place(A: np.ndarray, B: np.ndarray, centre: np.ndarray, resolution: fl
     return d <= AMBIGUITY_APART[0] and da <= AMBIGUITY_APART[1]
 
 
-def _check_ambiguity(config: MergeConfig, pa: PairInput, best: PairEstimate, tried,
+def _check_ambiguity(config: MergeConfig, pa: PairInput, best: PairResult, tried,
                      centre: np.ndarray) -> None:
     """Reject ``best`` when another, clearly different placement of the child also passes every
     gate and agrees nearly as well (within ``ambiguity_margin``): the child looks alike in two

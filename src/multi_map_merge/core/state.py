@@ -1,9 +1,14 @@
-"""Accepted transforms saved to a YAML file on change and read back at start.
+"""The merger's state file (``state_file``): its verified links and, for people, the placements
+made of them, saved to YAML on change and read back at start; a link and a placement as plain
+data.
 
-What is saved are the verified pairwise links (edges) with their scores, and for people the
-resulting placements. On reload the links are *restored, not trusted*: each is verified again
-on the robots' grids when both maps have arrived, and dropped if it no longer agrees.
-The file is written atomically (temporary file + rename), so a crash never leaves half a file.
+On reload the links are *restored, not trusted*: each is verified again on the robots' grids
+when both maps have arrived, and dropped if it no longer agrees. The file is written
+atomically (temporary file + rename), so a crash never leaves half a file.
+
+Not to be confused with ``merge_maps --transforms``' file (:func:`offline.transforms_report`,
+read by ``evaluate_map --transforms``): every map frame's pose in the merged frame, for people
+and scripts; the merger never reads it back.
 """
 from __future__ import annotations
 
@@ -13,12 +18,46 @@ from typing import Any, Dict
 
 import yaml
 
+from .links import Edge
+from .placement import Placement
+from .transforms import se2, xyyaw
+
+
+def link_dict(e: Edge) -> Dict[str, Any]:
+    """A verified link as plain data (the state file's ``edges``): x, y, yaw (metres, radians:
+    the pose of the child's map frame in the parent's), parent, child, inlier_ratio,
+    agreement, inliers, matches."""
+    x, y, yaw = xyyaw(e.T)
+    return {'x': float(x), 'y': float(y), 'yaw': float(yaw), 'parent': e.parent, 'child': e.child,
+            'inlier_ratio': float(e.inlier_ratio), 'agreement': float(e.agreement),
+            'inliers': int(e.inliers), 'matches': int(e.matches)}
+
+
+def link_from_dict(d: Dict[str, Any], stamp: float) -> Edge:
+    """The link of :func:`link_dict`'s data (received at ``stamp``); files written before the
+    inlier ratio had its name say ``reliability``: both are read. Raises KeyError, TypeError
+    or ValueError when ``d`` is not such data."""
+    ratio = d['inlier_ratio'] if 'inlier_ratio' in d else d['reliability']
+    return Edge(str(d['parent']), str(d['child']), se2(float(d['x']), float(d['y']), float(d['yaw'])),
+                float(ratio), float(d['agreement']), int(d['inliers']), int(d.get('matches', 0)), stamp)
+
+
+def placement_dict(pl: Placement) -> Dict[str, Any]:
+    """A placement as plain data, the one form of it everywhere (the state file, merge_maps'
+    transforms file, /diagnostics): x, y, yaw (metres, radians: the pose of the robot's map
+    frame in the merged frame), inlier_ratio, agreement, inliers (the weakest along its chain),
+    via (the robot it is linked through, '' for the reference) and chain (reference ... robot)."""
+    x, y, yaw = xyyaw(pl.T)
+    return {'x': float(x), 'y': float(y), 'yaw': float(yaw), 'inlier_ratio': float(pl.inlier_ratio),
+            'agreement': float(pl.agreement), 'inliers': int(pl.inliers), 'via': pl.via,
+            'chain': list(pl.path)}
+
 
 def save_state(path: str, state: Dict[str, Any]) -> None:
-    """Write ``state`` to ``path`` atomically."""
+    """Write ``state`` (:meth:`MapMerger.export_state`) to ``path`` atomically."""
     d = os.path.dirname(os.path.abspath(path))
     os.makedirs(d, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix='.transforms-', suffix='.yaml', dir=d)
+    fd, tmp = tempfile.mkstemp(prefix='.state-', suffix='.yaml', dir=d)
     try:
         with os.fdopen(fd, 'w') as f:
             yaml.safe_dump(state, f, sort_keys=False)
@@ -39,7 +78,7 @@ def load_state(path: str) -> Dict[str, Any]:
         with open(path) as f:
             data = yaml.safe_load(f) or {}
     except (OSError, yaml.YAMLError) as e:
-        raise ValueError('%s: cannot read transforms file: %s' % (path, e)) from None
+        raise ValueError('%s: cannot read the state file: %s' % (path, e)) from None
     if not isinstance(data, dict) or not isinstance(data.get('edges', []), list):
-        raise ValueError('%s: not a multi_map_merge transforms file' % path)
+        raise ValueError('%s: not a multi_map_merge state file (its verified links)' % path)
     return data

@@ -14,7 +14,7 @@ import numpy as np
 
 from .config import MergeConfig
 from .features import Features
-from .pair import PairEstimate, PairInput, compute_features, crop_known, estimate_pair
+from .pair import PairInput, PairResult, align_pair, compute_features, crop_known
 
 if TYPE_CHECKING:   # (the merger imports this module)
     from .merger import RobotMap
@@ -26,7 +26,7 @@ _POOL_SIZE = 0
 
 class PairWorkers:
     """One merger's side of the pool: the crop (known part) and the features of each of its
-    maps, derived once per map version (:attr:`RobotMap.key`), and the pairs' estimates."""
+    maps, derived once per map version (:attr:`RobotMap.key`), and the pairs' alignment."""
 
     def __init__(self, config: MergeConfig):
         self.config = config
@@ -77,8 +77,9 @@ class PairWorkers:
         return PairInput(m.name, m.version, levels, m.grid.resolution, m.grid.origin,
                          self.features_of(m), self.uid, offset)
 
-    def estimate_pairs(self, maps: Dict[str, RobotMap], todo: List[Tuple[str, str]]) -> List[PairEstimate]:
-        """Features of the maps that changed, then the pairs' estimates, in ``todo``'s order.
+    def align_pairs(self, maps: Dict[str, RobotMap], todo: List[Tuple[str, str]]) -> List[PairResult]:
+        """Features of the maps that changed, then every pair of ``todo`` aligned
+        (:func:`pair.align_pair`), the results in ``todo``'s order.
 
         With a worker pool the two stages overlap: waiting for every map's features before
         the first pair would leave a worker idle while the slowest map is described."""
@@ -91,7 +92,7 @@ class PairWorkers:
         if pool is None or not stale:
             self._features_all(maps)
             inputs = {n: self.input(maps[n]) for n in {x for ab in todo for x in ab}}
-            return self.map(estimate_pair, [c] * len(todo), [inputs[a] for a, _ in todo],
+            return self.map(align_pair, [c] * len(todo), [inputs[a] for a, _ in todo],
                             [inputs[b] for _, b in todo], [seeds[ab] for ab in todo])
         from concurrent.futures import as_completed
         waiting = {pool.submit(compute_features, c, self.crop(m)[0]): m for m in stale}
@@ -105,7 +106,7 @@ class PairWorkers:
                     for n in ab:
                         if n not in inputs:
                             inputs[n] = self.input(maps[n])
-                    queued[ab] = pool.submit(estimate_pair, c, inputs[ab[0]], inputs[ab[1]], seeds[ab])
+                    queued[ab] = pool.submit(align_pair, c, inputs[ab[0]], inputs[ab[1]], seeds[ab])
 
         submit_ready()
         for fut in as_completed(waiting):

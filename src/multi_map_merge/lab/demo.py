@@ -156,14 +156,14 @@ def report(truth_path: str, record_dir: str, single_path: Optional[str], png: Op
             float(np.mean([s.inlier_rmse for s in own])), '-', float(np.mean([s.wrong_occupied_m2 for s in own]))))
     print('%-30s %8.4f %10.3f m' % ('paper: multi-robot (4)', *PAPER['multi']))
     print('%-30s %8.4f %10.3f m' % ('paper: single robot', *PAPER['single']))
-    est = {}
+    placed = {}
     for r in robots:
         tf = (rec.get('robots', {}).get(r) or {}).get('tf')
         if tf is not None:
-            est[r] = se2(*tf)
-    est.setdefault(ref, np.eye(3))
-    errs = transform_errors(est, starts, ref)
-    fit_errs = transform_errors(est, fitted, ref) if ref in fitted else {}
+            placed[r] = se2(*tf)
+    placed.setdefault(ref, np.eye(3))
+    errs = transform_errors(placed, starts, ref)
+    fit_errs = transform_errors(placed, fitted, ref) if ref in fitted else {}
     print()
     print('every robot\'s map frame in the merged map (TF map -> <robot>/map at the end) against the truth'
           '%s:' % (' (its start pose; "fit": its own map\'s best fit to the ground truth)' if fit_errs else ''))
@@ -187,8 +187,8 @@ def report(truth_path: str, record_dir: str, single_path: Optional[str], png: Op
         if T_gt_merged is not None:
             for r in robots:
                 pts = np.array([p[1:3] for p in (rec.get('robots', {}).get(r) or {}).get('trajectory', [])], float)
-                if len(pts) and r in est:
-                    T = T_gt_merged @ est[r]      # robot's map frame -> merged frame -> truth
+                if len(pts) and r in placed:
+                    T = T_gt_merged @ placed[r]   # robot's map frame -> merged frame -> truth
                     traj[r] = (T[:2, :2] @ pts.T).T + T[:2, 2]
         figure(gt, panels, traj, png, title)
         print('\nwrote %s' % png)

@@ -449,19 +449,19 @@ def main(argv: Optional[List[str]] = None) -> int:
         gt = load_map(a.ground_truth)
     except MapFileError as e:
         return fail(str(e))
-    truth = est = None
+    truth = placed = None
     try:
         if a.truth:
             truth = load_truth(a.truth)
         if a.transforms:
-            est = load_transforms(a.transforms)
+            placed = load_transforms(a.transforms)
     except ValueError as e:
         return fail(str(e))
     robot = None
     if truth is not None:
         robot = a.robot
-        if robot is None and est is not None:
-            ref_t = next(iter(est))                      # load_transforms puts the reference first
+        if robot is None and placed is not None:
+            ref_t = next(iter(placed))                   # load_transforms puts the reference first
             robot = ref_t if ref_t in truth['starts'] else None
         robot = robot or truth['reference']
         if robot not in truth['starts']:
@@ -494,13 +494,13 @@ def main(argv: Optional[List[str]] = None) -> int:
           % (cx, cy, math.degrees(cyaw), x, y, math.degrees(yaw)))
     out = s.as_dict()
     out.update(map=a.map, ground_truth=a.ground_truth)
-    if est is not None and truth is not None:
-        ref_t = next(iter(est))
+    if placed is not None and truth is not None:
+        ref_t = next(iter(placed))
         if ref_t not in truth['starts']:
             return fail('%s: reference %s is not a robot of %s (robots: %s)' % (
                 a.transforms, ref_t, a.truth, ', '.join(sorted(truth['starts']))))
-        errs = transform_errors(est, truth['starts'], ref_t)
-        unknown = sorted(set(est) - set(truth['starts']))
+        errs = transform_errors(placed, truth['starts'], ref_t)
+        unknown = sorted(set(placed) - set(truth['starts']))
         out['transform_errors'] = {k: (None if e is None else {'translation_m': e[0], 'rotation_deg': e[1]})
                                    for k, e in errs.items()}
         print('transforms %s against %s (merged frame = %s\'s map frame):' % (a.transforms, a.truth, ref_t))

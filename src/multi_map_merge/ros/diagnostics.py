@@ -7,10 +7,13 @@ from typing import Dict
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
 from ..core.merger import RobotStatus
-from ..core.transforms import xyyaw
+from ..core.state import placement_dict
+
+# how a placement's numbers (:func:`core.state.placement_dict`) are written on /diagnostics
+FORMAT = {'inlier_ratio': '%.3f', 'agreement': '%.3f', 'inliers': '%d', 'x': '%.3f', 'y': '%.3f', 'yaw': '%.4f'}
 
 
-def diagnostics_msg(status: Dict[str, RobotStatus], gone: Dict[str, bool], est_seconds: float,
+def diagnostics_msg(status: Dict[str, RobotStatus], gone: Dict[str, bool], cycle_seconds: float,
                     robots: int, merged: int, stamp, now: float) -> DiagnosticArray:
     """The node's /diagnostics: one status per robot (its :class:`RobotStatus`, and whether its
     map publisher is ``gone``) and one for the node (the last estimation cycle's seconds, how
@@ -26,12 +29,10 @@ def diagnostics_msg(status: Dict[str, RobotStatus], gone: Dict[str, bool], est_s
               ('linked_to', ' '.join(st.linked_to) or '-'),
               ('publisher', 'gone' if gone.get(robot) else 'ok')]
         if st.placement is not None:
-            pl = st.placement
-            x, y, yaw = xyyaw(pl.T)
-            kv += [('via', pl.via or '-'), ('chain', ' -> '.join(pl.path)),
-                   ('inlier_ratio', '%.3f' % pl.inlier_ratio), ('agreement', '%.3f' % pl.agreement),
-                   ('inliers', str(pl.inliers)), ('x', '%.3f' % x), ('y', '%.3f' % y),
-                   ('yaw', '%.4f' % yaw), ('age_s', '%.1f' % (now - pl.stamp))]
+            d = placement_dict(st.placement)
+            kv += [('via', d['via'] or '-'), ('chain', ' -> '.join(d['chain']))]
+            kv += [(k, FORMAT[k] % d[k]) for k in ('inlier_ratio', 'agreement', 'inliers', 'x', 'y', 'yaw')]
+            kv += [('age_s', '%.1f' % (now - st.placement.stamp))]
         if st.last_attempt is not None:
             a = st.last_attempt
             kv += [('last_pair', st.last_attempt_with), ('last_inlier_ratio', '%.3f' % a.inlier_ratio),
@@ -54,8 +55,8 @@ def diagnostics_msg(status: Dict[str, RobotStatus], gone: Dict[str, bool], est_s
         arr.status.append(s)
     s = DiagnosticStatus()
     s.name, s.hardware_id = 'multi_map_merge: node', 'map_merge'
-    s.level, s.message = DiagnosticStatus.OK, 'estimation cycle %.2f s' % est_seconds
-    s.values = [KeyValue('last_estimation_s', '%.3f' % est_seconds),
+    s.level, s.message = DiagnosticStatus.OK, 'estimation cycle %.2f s' % cycle_seconds
+    s.values = [KeyValue('last_estimation_s', '%.3f' % cycle_seconds),
                 KeyValue('robots', str(robots)),
                 KeyValue('merged', str(merged))]
     arr.status.append(s)

@@ -7,7 +7,8 @@ accepts; the node then runs with that parameter's default (a merger that refuses
 a robot team's map away over one typo; the error line says what was used instead). A private
 parameter the node does not know is a warning naming the closest known one. m-explore's
 (``multirobot_map_merge``) names are read as aliases (:data:`MEXPLORE_ALIASES`); when an alias
-and our own name are both set, ours wins, with a warning.
+and our own name are both set, ours wins, with a warning (our own former names: unless ours is
+at its default, :meth:`MergeConfig.former_name_wins`).
 """
 from __future__ import annotations
 
@@ -182,7 +183,7 @@ RULES: Dict[str, Tuple[Callable[[Any], Any], str]] = {
     'trust_initial_poses': (_bool, 'true or false'),
     'known_init_poses': (_bool, 'true or false'),
     'workers': _int(0),
-    'transforms_file': _string(False),
+    'state_file': _string(False),
 }
 
 
@@ -234,14 +235,16 @@ def resolve_params(given: Mapping[str, Any]) -> Resolved:
     for name in names:
         if name in given:
             raw[name] = given[name]
-    # former names of ours, then m-explore's: each only where our own name is not set
+    # former names of ours, then m-explore's: each only where our own name is not set (ours
+    # former names also where it is at its default, as config/map_merge.yaml sets it)
     aliases = {old: (new, None, 'its former name') for old, new in MergeConfig.RENAMED.items()}
     aliases.update({k: (new, conv, "m-explore's name") for k, (new, conv) in MEXPLORE_ALIASES.items()})
     aliases.update({k: (new, None, 'its deprecated name') for k, (new, _) in DEPRECATED.items()})
+    read_as: Dict[str, str] = {}   # our name -> the alias its value was read from
     for alias, (ours, conv, kind) in aliases.items():
         if alias not in given:
             continue
-        if ours in given:
+        if ours in given and not (alias in MergeConfig.RENAMED and MergeConfig.former_name_wins(given, alias)):
             warnings.append('~%s (%s for ~%s) ignored: ~%s is set too and wins (%r)'
                             % (alias, kind, ours, ours, given[ours]))
             continue
@@ -251,9 +254,9 @@ def resolve_params(given: Mapping[str, Any]) -> Resolved:
         if conv is not None and isinstance(value, str):
             value = conv(value)   # (anything else is left as given: an error naming the alias below)
         raw[ours] = value
+        read_as[ours] = alias
         if alias not in DEPRECATED:
             notes.append('~%s read as ~%s (%s): %r' % (alias, ours, kind, value))
-    alias_of = {ours: alias for alias, (ours, _, _) in aliases.items() if alias in given and ours not in given}
     for alias, why in MEXPLORE_IGNORED.items():
         if alias in given:
             warnings.append('~%s: %s' % (alias, why))
@@ -263,7 +266,7 @@ def resolve_params(given: Mapping[str, Any]) -> Resolved:
         try:
             kw[name] = conv(value)
         except _Invalid as e:
-            shown = '~%s (given as ~%s)' % (name, alias_of[name]) if name in alias_of else '~%s' % name
+            shown = '~%s (given as ~%s)' % (name, read_as[name]) if name in read_as else '~%s' % name
             errors.append('%s = %r is invalid: must be %s; using the default %r'
                           % (shown, value, e, getattr(default, name)))
     # cross-parameter checks

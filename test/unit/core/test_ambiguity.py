@@ -83,8 +83,9 @@ def test_tb3_house_without_priors_keeps_the_true_links(shared_data):
     as the true ones. The maps alone cannot tell the halves apart: initial_poses can.)"""
     d = os.path.join(shared_data, 'tb3_house')
     m = merged({'tb3_%d' % i: load_map(os.path.join(d, 'tb3_%d_map.yaml' % i)) for i in range(4)})
+    links, results = m.links(), m.pair_results()
     for a, b in (('tb3_0', 'tb3_2'), ('tb3_1', 'tb3_3')):
-        assert (a, b) in m._edges, m._attempts.get((a, b))
-        x, y, yaw = xyyaw(m._edges[(a, b)].T)
+        assert (a, b) in links, results.get((a, b))
+        x, y, yaw = xyyaw(links[(a, b)].T)
         assert math.hypot(x, y) < 0.3 and abs(math.degrees(yaw)) < 3.0, (a, b, x, y, math.degrees(yaw))
-    assert all(a.accepted for a in m._attempts.values()), {k: a.reason for k, a in m._attempts.items()}
+    assert all(r.accepted for r in results.values()), {k: r.reason for k, r in results.items()}

@@ -33,3 +33,6 @@ def test_from_dict_converts_types():
 def test_a_renamed_parameter_is_still_read_by_its_old_name():
     assert MergeConfig.from_dict({'min_reliability': '0.3'}).min_inlier_ratio == 0.3
     assert MergeConfig.from_dict({'min_reliability': 0.3, 'min_inlier_ratio': 0.2}).min_inlier_ratio == 0.2
+    assert MergeConfig.from_dict({'transforms_file': 'links.yaml'}).state_file == 'links.yaml'
+    # ours at its default (as config/map_merge.yaml sets every parameter): the former name is meant
+    assert MergeConfig.from_dict({'min_reliability': 0.3, 'min_inlier_ratio': 0.0}).min_inlier_ratio == 0.3

@@ -9,8 +9,7 @@ import numpy as np
 import pytest
 from conftest import REPO
 
-from multi_map_merge.core import matching as est
-from multi_map_merge.core import verify
+from multi_map_merge.core import matching, verify
 from multi_map_merge.core.grid import FREE, OCCUPIED, known_bbox
 from multi_map_merge.core.transforms import apply, rigid_from_points, se2
 
@@ -35,7 +34,7 @@ def test_residuals_as_matrix_product_equal_direct_ones(seed):
     rng = np.random.default_rng(100 + seed)
     a = rng.uniform(-np.pi, np.pi, 50)
     c, s, tx, ty = np.cos(a), np.sin(a), rng.uniform(-500, 500, 50), rng.uniform(-500, 500, 50)
-    got = est._hypothesis_terms(c, s, tx, ty) @ est._match_terms(src, dst)
+    got = matching._hypothesis_terms(c, s, tx, ty) @ matching._match_terms(src, dst)
     ex = np.multiply.outer(c, src[:, 0]) - np.multiply.outer(s, src[:, 1]) + tx[:, None] - dst[:, 0]
     ey = np.multiply.outer(s, src[:, 0]) + np.multiply.outer(c, src[:, 1]) + ty[:, None] - dst[:, 1]
     assert np.abs(got - (ex * ex + ey * ey)).max() < 1e-6
@@ -70,7 +69,7 @@ def test_refits_all_at_once_equal_one_at_a_time(seed):
     tx = T[0, 2] + np.append(rng.normal(0, 1, 8), rng.uniform(-300, 300, 8))
     ty = T[1, 2] + np.append(rng.normal(0, 1, 8), rng.uniform(-300, 300, 8))
     th2 = 9.0
-    got = est._refit_all(np.cos(a), np.sin(a), tx, ty, src, dst, est._match_terms(src, dst), th2)
+    got = matching._refit_all(np.cos(a), np.sin(a), tx, ty, src, dst, matching._match_terms(src, dst), th2)
     assert len(got) == a.size
     for k, (A, mask) in enumerate(got):
         A0 = np.array([[np.cos(a[k]), -np.sin(a[k]), tx[k]], [np.sin(a[k]), np.cos(a[k]), ty[k]], [0, 0, 1.0]])
@@ -83,7 +82,7 @@ def test_refits_all_at_once_equal_one_at_a_time(seed):
 
 def test_ransac_finds_the_transform_among_outliers():
     src, dst, T = _matches(7, n=600, inlier_share=0.25)
-    hyps = est.ransac_rigid(src, dst, 3.0, 15000, seed=1, hypotheses=4)
+    hyps = matching.ransac_rigid(src, dst, 3.0, 15000, seed=1, hypotheses=4)
     A, mask = hyps[0]
     assert mask.sum() >= 0.9 * 150
     centre = src.mean(axis=0, keepdims=True)

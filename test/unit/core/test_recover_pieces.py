@@ -39,12 +39,12 @@ def test_core_api_recovers_every_pose(world, n, seed):
         assert np.linalg.det(pl['p%d' % i].T[:2, :2]) == pytest.approx(1.0)
 
 
-MERGED_KEYS = {'merged', 'x', 'y', 'yaw', 'inlier_ratio', 'inliers', 'agreement', 'via'}
+MERGED_KEYS = {'merged', 'x', 'y', 'yaw', 'inlier_ratio', 'inliers', 'agreement', 'via', 'chain'}
 
 
 def check_report(report, ps, stems):
-    """T.yaml's exact shape (README: reference, maps: {stem: {merged, x, y, yaw, inlier_ratio,
-    inliers, agreement, via}}) and every pose against the truth."""
+    """The transforms file's exact shape (README: reference, maps: {stem: {merged, x, y, yaw,
+    inlier_ratio, agreement, inliers, via, chain}}) and every pose against the truth."""
     assert set(report) == {'reference', 'maps'} and report['reference'] == stems[0]
     assert set(report['maps']) == set(stems[1:])
     for i, s in enumerate(stems[1:], 1):

@@ -217,3 +217,23 @@ def test_robotis_mexplore_block_resolves_with_only_the_confidence_warning():
     assert (c.merged_map_topic, c.merged_map_frame) == ('map', 'map')
     assert (c.merge_rate, c.discovery_rate, c.estimation_rate, c.known_init_poses) == (0.5, 0.05, 0.1, True)
     assert c.min_inlier_ratio == MergeConfig().min_inlier_ratio   # estimation_confidence maps to nothing
+
+
+def test_the_former_name_of_state_file_is_still_read():
+    res = resolve_params({'transforms_file': '/tmp/links.yaml'})
+    assert res.config.state_file == '/tmp/links.yaml' and not res.warnings and not res.errors
+    assert res.notes == ["~transforms_file read as ~state_file (its former name): '/tmp/links.yaml'"]
+    assert res.config.transforms_file == '/tmp/links.yaml'   # (the attribute ros/node.py reads)
+
+
+def test_a_former_name_wins_over_our_name_at_its_default_as_config_map_merge_yaml_sets_it():
+    """A launch file that loads config/map_merge.yaml (every parameter at its default) and sets a
+    former name (test/ros/lifecycle.test: ~transforms_file) means the former name."""
+    with open(os.path.join(REPO, 'config', 'map_merge.yaml')) as f:
+        defaults = yaml.safe_load(f)
+    res = resolve_params(dict(defaults, transforms_file='/tmp/links.yaml', min_reliability=0.3))
+    assert res.config.state_file == '/tmp/links.yaml' and res.config.min_inlier_ratio == 0.3
+    assert not res.warnings and len(res.notes) == 2
+    # our name set to anything else wins, with a warning
+    res = resolve_params({'transforms_file': '/tmp/old.yaml', 'state_file': '/tmp/new.yaml'})
+    assert res.config.state_file == '/tmp/new.yaml' and len(res.warnings) == 1
