@@ -25,7 +25,7 @@ import numpy as np
 from . import links, placement, verify
 from .composite import Lattice, Patch, composite, lattice_for, warp_patch
 from .config import MergeConfig
-from .grid import DEFAULT_FREE_THRESH, DEFAULT_OCC_THRESH, Grid, rescale
+from .grid import DEFAULT_FREE_THRESH, DEFAULT_OCC_THRESH, Grid, rescale, same_grid
 from .links import Edge
 from .pair import PairEstimate, estimate_pair
 from .placement import Placement
@@ -119,7 +119,7 @@ class MapMerger:
         """
         with self._lock:
             prev = self._maps.get(name)
-            if prev is not None and _same_grid(prev.raw, grid):
+            if prev is not None and same_grid(prev.raw, grid):
                 prev.received = time.time()   # republished unchanged: nothing to recompute
                 self._errors.pop(name, None)
                 return None
@@ -410,7 +410,3 @@ def _restarted(old: Grid, new: Grid) -> bool:
     known_new = int(np.count_nonzero(new.data >= 0))
     return known_old > 1000 and known_new < 0.5 * known_old
 
-
-def _same_grid(a: Grid, b: Grid) -> bool:
-    return (a.data.shape == b.data.shape and a.resolution == b.resolution and a.origin == b.origin
-            and a.frame_id == b.frame_id and np.array_equal(a.data, b.data))

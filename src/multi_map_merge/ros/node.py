@@ -17,7 +17,7 @@ from nav_msgs.srv import GetMap, GetMapResponse
 from std_srvs.srv import Trigger, TriggerResponse
 
 from ..core.config import MergeConfig
-from ..core.grid import Grid, GridError, apply_update
+from ..core.grid import Grid, GridError, apply_update, same_grid
 from ..core.merger import MapMerger
 from ..core.state import load_state, save_state
 from .convert import NumpyGrid, NumpyGridUpdate, grid_from_msg, grid_to_msg, metadata, transform_msg
@@ -49,9 +49,10 @@ class MergeNode:
     """Thin ROS shell around :class:`MapMerger`.
 
     Subscribes ``/<robot>/<map_topic>`` for every discovered (or listed) robot, runs estimation
-    in a worker thread at ``estimation_rate``, composites and publishes ``/map`` at
-    ``merge_rate``, broadcasts ``merged_map_frame -> <robot>/map`` at ``tf_rate``, and
-    publishes per-robot state on ``/diagnostics``.
+    in a worker thread at ``estimation_rate``, composites in another, publishes ``/map``
+    (latched) when the merged map changed (checked at ``merge_rate``), broadcasts
+    ``merged_map_frame -> <robot>/map`` at ``tf_rate``, and publishes per-robot state on
+    ``/diagnostics``.
     """
 
     def __init__(self, config: MergeConfig):
@@ -86,6 +87,8 @@ class MergeNode:
             self.merger.propose_reference(sorted(r.strip('/') for r in config.robots)[0])
         for r in config.robots:
             self._subscribe(r.strip('/'))
+        self._ready = None   # the latest merged grid, composited off the publishing path
+        self._sent = None    # (grid, placements) of the last /map sent
         self._discover(None)
         rospy.Timer(rospy.Duration(1.0 / config.discovery_rate), self._discover)
         rospy.Timer(rospy.Duration(1.0 / config.merge_rate), self._publish_map)
@@ -93,7 +96,6 @@ class MergeNode:
         rospy.Timer(rospy.Duration(1.0), self._publish_diagnostics)
         self._worker = threading.Thread(target=self._estimation_loop, name='estimation', daemon=True)
         self._worker.start()
-        self._ready = None   # the latest merged grid, composited off the publishing path
         self._compositor = threading.Thread(target=self._compositing_loop, name='compositing', daemon=True)
         self._compositor.start()
         rospy.loginfo('multi_map_merge: merging %s maps matching %s; reference %s; merged frame %s',
@@ -270,12 +272,24 @@ class MergeNode:
             time.sleep(max(0.01, period / 2.0 - (time.monotonic() - t0)))
 
     def _publish_map(self, _event) -> None:
+        """Publish the merged map (latched) when it changed since the last one sent: its cells,
+        its geometry, or a robot's placement. An unchanged merge sends nothing: the latched
+        topic already holds it for every subscriber, late ones included, and resending a whole
+        grid at ``merge_rate`` would load every remote subscriber's link for no news."""
         grid = self._ready
         if grid is None:
+            return
+        sent = self._sent
+        if sent is not None and grid is sent[0]:
+            return   # compose() returns the very same grid while nothing moved or changed
+        placed = {r: pl.T.tobytes() for r, pl in self.merger.placements().items()}
+        if sent is not None and placed == sent[1] and same_grid(grid, sent[0]):
+            self._sent = (grid, placed)   # recomposed, but to the same cells
             return
         now = rospy.Time.now()
         self._map_pub.publish(grid_to_msg(grid, now, self.cfg.merged_map_frame))
         self._meta_pub.publish(metadata(grid, now))
+        self._sent = (grid, placed)
 
     def _publish_tf(self, _event) -> None:
         frames = self.merger.frames()
