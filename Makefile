@@ -9,7 +9,7 @@ export DEBIAN_FRONTEND := noninteractive
 WS      ?= /tmp/multi_map_merge_ws_$(shell echo '$(CURDIR)' | md5sum | cut -c1-8)
 SETUP   := $(WS)/devel/setup.bash
 APT_PKGS := python3-rospy python3-tf2-ros python3-nav-msgs python3-rostest python3-rosbag \
-  python3-roslaunch python3-rostopic python3-map-msgs python3-diagnostic-msgs python3-std-srvs \
+  python3-roslaunch python3-rostopic python3-map-msgs python3-diagnostic-msgs python3-diagnostic-updater python3-std-srvs \
   python3-geometry-msgs python3-sensor-msgs python3-catkin-pkg python3-setuptools \
   catkin ros-core-dev g++ python3-opencv python3-numpy python3-scipy python3-yaml \
   python3-pytest python3-matplotlib python3-open3d python3-tf2-msgs \

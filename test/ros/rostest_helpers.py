@@ -26,6 +26,7 @@ from multi_map_merge.lab.synth import cut_piece, split_rects
 from multi_map_merge.ros.convert import grid_to_msg, quaternion_yaw, transform_msg
 
 NumpyGrid = numpy_msg(OccupancyGrid)
+MERGER = 'map_merge'   # the merger node's name in the rostests (launch/map_merge.launch)
 
 
 def shared_data() -> str:
@@ -96,7 +97,9 @@ class Listener:
         now = time.time()
         with self.lock:
             for s in msg.status:
-                if s.name.startswith('multi_map_merge: '):
+                # the merger node's statuses (diagnostic_updater names them '<node>: <task>'):
+                # one per robot, whose hardware id is the robot, and the node's, whose is the node's
+                if s.name.startswith(MERGER + ': ') and s.hardware_id:
                     self.diag[s.hardware_id] = (s, now)
             self.diag_time = now
 
@@ -114,6 +117,10 @@ class Listener:
         """How many /map messages arrived so far."""
         with self.lock:
             return self.map_count
+
+    def node_status(self, after=0.0):
+        """(DiagnosticStatus, values dict) of the merger node itself if reported after ``after``."""
+        return self.status(MERGER, after)
 
     def status(self, robot, after=0.0):
         """(DiagnosticStatus, values dict) of ``robot`` if reported after ``after``, else None."""

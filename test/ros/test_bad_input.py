@@ -89,6 +89,13 @@ class TestBadInput(PiecesTest):
         self.assertEqual(s.level, DiagnosticStatus.WARN)
         self.assertTrue(s.message.startswith('not merged'), s.message)
         self.assertNotEqual(kv.get('last_result'), 'accepted')
+        # the node's own status warns, naming the robot it cannot merge
+        node = wait_until(lambda: self.listen.node_status(t_try), 5.0)
+        self.assertTrue(node, 'no status of the node itself')
+        print('node: %s' % node[0].message)
+        self.assertEqual(node[0].level, DiagnosticStatus.WARN)
+        self.assertIn('not merged: tb3_2', node[0].message)
+        self.assertEqual(node[1].get('not_merged'), 'tb3_2')
         # tb3_0 and tb3_1 are still placed, so the TF tree itself works
         self.assertIsNotNone(lookup(self.buf, 'map', 'tb3_1/map', 2.0))
         # the merged map is exactly the two-robot one, and was not even sent again

@@ -3,15 +3,16 @@ merged map, the TF of every placed robot and /diagnostics. See the README's ROS 
 from __future__ import annotations
 
 import fnmatch
+import functools
 import math
 import threading
 import time
-from typing import Dict
+from typing import Dict, Optional
 
+import diagnostic_updater
 import numpy as np
 import rospy
 import tf2_ros
-from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import MapMetaData
 from nav_msgs.srv import GetMap, GetMapResponse
 from std_srvs.srv import Trigger, TriggerResponse
@@ -21,7 +22,7 @@ from ..core.grid import Grid, GridError, apply_update, same_grid
 from ..core.merger import MapMerger
 from ..core.state import load_state, save_state
 from .convert import NumpyGrid, NumpyGridUpdate, grid_from_msg, grid_to_msg, metadata, transform_msg
-from .diagnostics import diagnostics_msg
+from .diagnostics import node_diagnostic, robot_diagnostic
 from .params import resolve_params
 
 
@@ -51,8 +52,8 @@ class MergeNode:
     Subscribes ``/<robot>/<map_topic>`` for every discovered (or listed) robot, runs estimation
     in a worker thread at ``estimation_rate``, composites in another, publishes ``/map``
     (latched) when the merged map changed (checked at ``merge_rate``), broadcasts
-    ``merged_map_frame -> <robot>/map`` at ``tf_rate``, and publishes per-robot state on
-    ``/diagnostics``.
+    ``merged_map_frame -> <robot>/map`` at ``tf_rate``, and publishes its own and every
+    robot's state on ``/diagnostics`` (``diagnostic_updater``).
     """
 
     def __init__(self, config: MergeConfig):
@@ -66,10 +67,16 @@ class MergeNode:
         self._map_pub = rospy.Publisher(config.merged_map_topic, NumpyGrid, queue_size=1, latch=True)
         self._meta_pub = rospy.Publisher(config.merged_map_topic + '_metadata', MapMetaData,
                                          queue_size=1, latch=True)
-        self._diag_pub = rospy.Publisher('/diagnostics', DiagnosticArray, queue_size=10)
         self._tf = tf2_ros.TransformBroadcaster()
         self._last_est = 0.0
         self._est_seconds = 0.0
+        self._est_error: Optional[BaseException] = None   # what the last estimation cycle raised
+        # /diagnostics: the node's status and one per robot (added as robots appear), at
+        # ~diagnostic_period (the updater's parameter, 1 s by default)
+        self._updater = diagnostic_updater.Updater()
+        self._updater.setHardwareID(rospy.get_name().lstrip('/'))
+        self._updater.add('node', self._node_diagnostic)
+        self._diag_robots: set = set()
         rospy.Service('~reset', Trigger, self._reset)
         # gmapping's service, under gmapping's (relative) name, beside the `map` topic
         rospy.Service('dynamic_map', GetMap, self._get_map)
@@ -93,7 +100,7 @@ class MergeNode:
         rospy.Timer(rospy.Duration(1.0 / config.discovery_rate), self._discover)
         rospy.Timer(rospy.Duration(1.0 / config.merge_rate), self._publish_map)
         rospy.Timer(rospy.Duration(1.0 / config.tf_rate), self._publish_tf)
-        rospy.Timer(rospy.Duration(1.0), self._publish_diagnostics)
+        rospy.Timer(rospy.Duration(0.2), self._update_diagnostics)
         self._worker = threading.Thread(target=self._estimation_loop, name='estimation', daemon=True)
         self._worker.start()
         self._compositor = threading.Thread(target=self._compositing_loop, name='compositing', daemon=True)
@@ -233,12 +240,17 @@ class MergeNode:
         period = 1.0 / self.cfg.estimation_rate
         while not rospy.is_shutdown():
             t0 = time.monotonic()
+            failed_before = self._est_error is not None
             try:
                 for event in self.merger.estimate():
                     rospy.loginfo('multi_map_merge: %s', event)
+                self._est_error = None
             except Exception as e:  # a bad cycle must not end estimation for good
                 rospy.logerr('multi_map_merge: estimation failed: %r', e)
+                self._est_error = e
             self._est_seconds = time.monotonic() - t0
+            if (self._est_error is not None) != failed_before:
+                self._updater.force_update()   # the node's status changed level: say so now
             self._last_est = time.time()
             self._persist()
             left = period - self._est_seconds
@@ -306,10 +318,26 @@ class MergeNode:
         if out:
             self._tf.sendTransform(out)
 
-    def _publish_diagnostics(self, _event) -> None:
-        self._diag_pub.publish(diagnostics_msg(self.merger.status(), self._gone, self._est_seconds,
-                                               len(self.merger.frames()), len(self.merger.placements()),
-                                               rospy.Time.now(), time.time()))
+    def _update_diagnostics(self, _event) -> None:
+        """Give every robot seen a status of its own, then let the updater publish (it does at
+        ~diagnostic_period)."""
+        for robot in self.merger.status():
+            if robot not in self._diag_robots:
+                self._diag_robots.add(robot)
+                self._updater.add(robot, functools.partial(self._robot_diagnostic, robot))
+        self._updater.update()
+
+    def _robot_diagnostic(self, robot: str, stat):
+        st = self.merger.status().get(robot)
+        if st is None:   # (robots are never forgotten by the node: kept for completeness)
+            stat.summary(stat.WARN, 'no longer known')
+            stat.hardware_id = robot
+            return stat
+        return robot_diagnostic(robot, st, bool(self._gone.get(robot)), time.time(), stat)
+
+    def _node_diagnostic(self, stat):
+        return node_diagnostic(self.merger.status(), self._gone, self._est_seconds, self._est_error,
+                               len(self.merger.frames()), len(self.merger.placements()), stat)
 
     def _get_map(self, _req) -> GetMapResponse:
         """The merged map as /map has it now (gmapping's ``dynamic_map``); an error before
