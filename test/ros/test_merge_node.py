@@ -23,14 +23,16 @@ import rostest
 from rostest_helpers import (
     PiecesTest,
     expected_canvas,
+    fmt_pose,
     grid_of,
     known_cells,
     known_extent,
     lookup,
     wait_until,
 )
+from visualization_msgs.msg import Marker, MarkerArray
 
-from multi_map_merge.core.transforms import pose_distance
+from multi_map_merge.core.transforms import pose_distance, se2
 from multi_map_merge.ros.tools import revealed
 
 PKG = 'multi_map_merge'
@@ -167,6 +169,57 @@ class TestMergeNode(PiecesTest):
         self.assertIsNotNone(msg, 'the /map after the reset is not the whole merge: %d known cells, the '
                              'pieces %d' % (known_cells(self.listen.latest_map()), self.union_known))
         self.assert_matches_truth(msg, 'after reset:')
+
+    def test_5_markers_at_every_robots_origin(self):
+        """/map_merge/markers (latched): in the merged frame, an arrow and a name per placed robot
+        at its map frame's origin, where the TF puts it, and a line per kept link between two
+        robots' origins."""
+        self.assertIsNotNone(self.t_full, 'test_1 did not run')
+        got = []
+        sub = rospy.Subscriber('/map_merge/markers', MarkerArray, got.append, queue_size=5)
+
+        def every_robot():
+            arr = got[-1] if got else None
+            if arr is None or len([m for m in arr.markers if m.ns == 'robots']) != len(ROBOTS):
+                return None
+            return arr
+        arr = wait_until(every_robot, 10.0)
+        sub.unregister()
+        self.assertTrue(arr, 'no markers of the %d robots: %s' % (len(ROBOTS), [
+            [(m.ns, m.id) for m in a.markers] for a in got[-1:]]))
+        self.assertEqual(arr.markers[0].action, Marker.DELETEALL)
+        for m in arr.markers[1:]:
+            self.assertEqual(m.header.frame_id, 'map')
+            self.assertEqual(m.action, Marker.ADD)
+        arrows = {m.id: m for m in arr.markers if m.ns == 'robots'}
+        names = {m.text.split()[0]: m.id for m in arr.markers if m.ns == 'robot_names'}
+        self.assertEqual(sorted(names), ROBOTS)
+        origin = {}
+        for k, r in enumerate(ROBOTS):
+            a = arrows[names[r]]
+            self.assertEqual(a.type, Marker.ARROW)
+            T = lookup(self.buf, 'map', '%s/map' % r, 5.0)
+            self.assertIsNotNone(T, 'no TF map -> %s/map' % r)
+            yaw = 2 * math.atan2(a.pose.orientation.z, a.pose.orientation.w)
+            d, da = pose_distance(se2(a.pose.position.x, a.pose.position.y, yaw), T)
+            print('%s: arrow at (%.3f, %.3f, %.2f deg), TF %s: %.6f m, %.6f deg apart; true pose error %.3f m'
+                  % (r, a.pose.position.x, a.pose.position.y, math.degrees(yaw), fmt_pose(T), d,
+                     math.degrees(da), pose_distance(T, self.T_true[k])[0]))
+            self.assertLess(d, 1e-4)
+            self.assertLess(da, 1e-4)
+            origin[r] = (a.pose.position.x, a.pose.position.y)
+        lines = [m for m in arr.markers if m.ns == 'links']
+        labels = [m.text for m in arr.markers if m.ns == 'link_labels']
+        print('links: %s' % labels)
+        self.assertGreaterEqual(len(lines), len(ROBOTS) - 1, 'four placed robots need three links at least')
+        self.assertEqual(len(labels), len(lines))
+        for line, text in zip(lines, labels):
+            a, b = text.split(':')[0].split('-')
+            ends = [(p.x, p.y) for p in line.points]
+            self.assertEqual(len(ends), 2)
+            for end, robot in zip(ends, (a, b)):
+                self.assertAlmostEqual(end[0], origin[robot][0], places=6)
+                self.assertAlmostEqual(end[1], origin[robot][1], places=6)
 
 
 if __name__ == '__main__':

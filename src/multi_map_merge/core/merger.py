@@ -230,6 +230,11 @@ class MapMerger:
         with self._lock:
             return dict(self._placements)
 
+    def links(self) -> List[Edge]:
+        """The kept verified links, one per linked pair of robots."""
+        with self._lock:
+            return list(self._edges.values())
+
     def frames(self) -> Dict[str, str]:
         """Map frame id of every robot (from its grid's header)."""
         with self._lock:

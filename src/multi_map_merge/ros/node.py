@@ -16,6 +16,7 @@ import tf2_ros
 from nav_msgs.msg import MapMetaData
 from nav_msgs.srv import GetMap, GetMapResponse
 from std_srvs.srv import Trigger, TriggerResponse
+from visualization_msgs.msg import MarkerArray
 
 from ..core.config import MergeConfig
 from ..core.grid import Grid, GridError, apply_update, same_grid
@@ -23,6 +24,7 @@ from ..core.merger import MapMerger
 from ..core.state import load_state, save_state
 from .convert import NumpyGrid, NumpyGridUpdate, grid_from_msg, grid_to_msg, metadata, transform_msg
 from .diagnostics import node_diagnostic, robot_diagnostic
+from .markers import markers_key, markers_msg
 from .params import resolve_params
 
 
@@ -68,6 +70,9 @@ class MergeNode:
         self._meta_pub = rospy.Publisher(config.merged_map_topic + '_metadata', MapMetaData,
                                          queue_size=1, latch=True)
         self._tf = tf2_ros.TransformBroadcaster()
+        # rviz: where each robot started and the kept links (latched, sent when they change)
+        self._markers_pub = rospy.Publisher('~markers', MarkerArray, queue_size=1, latch=True)
+        self._markers_key = None
         self._last_est = 0.0
         self._est_seconds = 0.0
         self._est_error: Optional[BaseException] = None   # what the last estimation cycle raised
@@ -99,6 +104,7 @@ class MergeNode:
         self._discover(None)
         rospy.Timer(rospy.Duration(1.0 / config.discovery_rate), self._discover)
         rospy.Timer(rospy.Duration(1.0 / config.merge_rate), self._publish_map)
+        rospy.Timer(rospy.Duration(1.0 / config.merge_rate), self._publish_markers)
         rospy.Timer(rospy.Duration(1.0 / config.tf_rate), self._publish_tf)
         rospy.Timer(rospy.Duration(0.2), self._update_diagnostics)
         self._worker = threading.Thread(target=self._estimation_loop, name='estimation', daemon=True)
@@ -302,6 +308,18 @@ class MergeNode:
         self._map_pub.publish(grid_to_msg(grid, now, self.cfg.merged_map_frame))
         self._meta_pub.publish(metadata(grid, now))
         self._sent = (grid, placed)
+
+    def _publish_markers(self, _event) -> None:
+        """The rviz markers (latched), sent again only when a placement or a kept link changed."""
+        placements, links = self.merger.placements(), self.merger.links()
+        key = markers_key(placements, links)
+        if key == self._markers_key:
+            return
+        # stamp 0: a placement is a pose between frames, not of a moment; rviz draws it with
+        # the latest TF whatever its fixed frame
+        self._markers_pub.publish(markers_msg(placements, links, self.cfg.merged_map_frame, rospy.Time(0),
+                                              self.cfg.min_agreement))
+        self._markers_key = key
 
     def _publish_tf(self, _event) -> None:
         frames = self.merger.frames()
