@@ -18,6 +18,7 @@ from rosgraph_msgs.msg import Log
 from rospy.numpy_msg import numpy_msg
 from rostest_helpers import Listener, RobotPlayer, data_file, known_cells, lookup, make_pieces, wait_until
 from tf2_msgs.msg import TFMessage
+from visualization_msgs.msg import Marker, MarkerArray
 
 from multi_map_merge.core.grid import Grid
 from multi_map_merge.core.mapio import load_map
@@ -41,6 +42,9 @@ class TestLifecycle(unittest.TestCase):
         cls.buf = tf2_ros.Buffer(rospy.Duration(30.0))
         cls.tfl = tf2_ros.TransformListener(cls.buf)
         cls.player = RobotPlayer(['tb3_0', 'tb3_1'])
+        cls.markers = []   # (arrival, MarkerArray) of /map_merge/markers
+        rospy.Subscriber('/map_merge/markers', MarkerArray, lambda m: cls.markers.append((time.time(), m)),
+                         queue_size=20)
 
     @classmethod
     def _on_log(cls, msg):
@@ -95,6 +99,18 @@ class TestLifecycle(unittest.TestCase):
 
         self.assertTrue(wait_until(lambda: self.listen.map_where(lambda m: known_cells(m) < 0.8 * known_before), 10.0),
                         'stale cells of the restarted map stayed in /map')
+
+        # its placement and link were forgotten: the rviz markers drop its arrow and the link
+        def markers_without_tb3_1():
+            for t, arr in list(self.markers):
+                names = [m.text for m in arr.markers if m.ns == 'robot_names']
+                links = [m for m in arr.markers if m.ns == 'links']
+                if t > t2 and arr.markers[0].action == Marker.DELETEALL and names == ['tb3_0 (reference)'] \
+                        and not links:
+                    return arr
+            return None
+        self.assertTrue(wait_until(markers_without_tb3_1, 10.0), 'the markers of the restarted tb3_1 stayed: %s'
+                        % [[(m.ns, m.text) for m in a.markers] for _, a in self.markers[-1:]])
 
         # the robot vanishes (its publisher goes away) and comes back with its full map
         self.player.pubs['tb3_1'].unregister()
