@@ -9,13 +9,14 @@ export DEBIAN_FRONTEND := noninteractive
 WS      ?= /tmp/multi_map_merge_ws_$(shell echo '$(CURDIR)' | md5sum | cut -c1-8)
 SETUP   := $(WS)/devel/setup.bash
 APT_PKGS := python3-rospy python3-tf2-ros python3-nav-msgs python3-rostest python3-rosbag \
-  python3-roslaunch python3-rostopic python3-map-msgs python3-diagnostic-msgs python3-std-srvs \
+  python3-roslaunch python3-rostopic python3-map-msgs python3-diagnostic-msgs python3-diagnostic-updater python3-std-srvs \
   python3-geometry-msgs python3-sensor-msgs python3-catkin-pkg python3-setuptools \
   catkin ros-core-dev g++ python3-opencv python3-numpy python3-scipy python3-yaml \
   python3-pytest python3-matplotlib python3-open3d python3-tf2-msgs \
   rosbash python3-rosparam python3-rosnode python3-rosgraph python3-rospkg python3-roslib \
-  rviz xvfb
-# (rviz, xvfb: test/ros/rviz_screenshot.test runs rviz with our config under Xvfb)
+  python3-visualization-msgs python3-std-msgs rviz xvfb
+# (visualization-msgs, std-msgs: the node's rviz markers; rviz, xvfb: test/ros/rviz_screenshot.test
+# runs rviz with our config under Xvfb)
 # gmapping (the real slam_gmapping node): the system's when ROS finds one (Ubuntu + Noetic:
 # ros-noetic-gmapping through rosdep), else built from ../shared/gmapping (unmodified upstream
 # source) into GMAPPING_WS and overlaid on the workspace, else none (`make gmapping` says so).

@@ -1,12 +1,14 @@
 """Helpers shared by the rostest scripts in this directory (not a test itself): the shipped
 maps, the shared data, waiting, a listener of the merger's outputs, a player of robots' maps,
-pieces of a map at known poses, comparisons with the truth, stopping a launch."""
+pieces of a map at known poses, comparisons with the truth, the set-up of a test on such
+pieces (:class:`PiecesTest`), stopping a launch."""
 import math
 import os
 import signal
 import subprocess
 import threading
 import time
+import unittest
 
 import cv2
 import numpy as np
@@ -17,12 +19,14 @@ from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import OccupancyGrid
 from rospy.numpy_msg import numpy_msg
 
-from multi_map_merge.core.grid import FREE, OCCUPIED, UNKNOWN, Grid, known_bbox
-from multi_map_merge.core.transforms import cell_to_metric, se2, xyyaw
+from multi_map_merge.core.grid import FREE, OCCUPIED, UNKNOWN, known_bbox
+from multi_map_merge.core.mapio import load_map
+from multi_map_merge.core.transforms import cell_to_metric, pose_distance, se2, xyyaw
 from multi_map_merge.lab.synth import cut_piece, split_rects
 from multi_map_merge.ros.convert import grid_to_msg, quaternion_yaw, transform_msg
 
 NumpyGrid = numpy_msg(OccupancyGrid)
+MERGER = 'map_merge'   # the merger node's name in the rostests (launch/map_merge.launch)
 
 
 def shared_data() -> str:
@@ -69,7 +73,9 @@ def wait_until(pred, timeout, period=0.1):
 
 
 class Listener:
-    """Keeps the latest /map and /diagnostics per robot, with the wall time they arrived."""
+    """Keeps the latest /map (and how many arrived) and /diagnostics per robot, with the wall
+    time they arrived. The merger sends /map (latched) only when the merged map changed: wait
+    for the content a test needs (:meth:`map_where`), not for "the next /map"."""
 
     def __init__(self):
         self.lock = threading.Lock()
@@ -91,14 +97,30 @@ class Listener:
         now = time.time()
         with self.lock:
             for s in msg.status:
-                if s.name.startswith('multi_map_merge: '):
+                # the merger node's statuses (diagnostic_updater names them '<node>: <task>'):
+                # one per robot, whose hardware id is the robot, and the node's, whose is the node's
+                if s.name.startswith(MERGER + ': ') and s.hardware_id:
                     self.diag[s.hardware_id] = (s, now)
             self.diag_time = now
 
-    def map_after(self, t):
-        """The latest /map if it arrived after wall time ``t``, else None."""
+    def latest_map(self):
+        """The latest /map received (None before the first)."""
         with self.lock:
-            return self.map_msg if self.map_msg is not None and self.map_time > t else None
+            return self.map_msg
+
+    def map_where(self, pred):
+        """The latest /map if ``pred(msg)`` holds for it, else None (for :func:`wait_until`)."""
+        msg = self.latest_map()
+        return msg if msg is not None and pred(msg) else None
+
+    def maps_received(self):
+        """How many /map messages arrived so far."""
+        with self.lock:
+            return self.map_count
+
+    def node_status(self, after=0.0):
+        """(DiagnosticStatus, values dict) of the merger node itself if reported after ``after``."""
+        return self.status(MERGER, after)
 
     def status(self, robot, after=0.0):
         """(DiagnosticStatus, values dict) of ``robot`` if reported after ``after``, else None."""
@@ -128,6 +150,10 @@ class RobotPlayer:
     def publish(self, robot, grid):
         self.pubs[robot].publish(grid_to_msg(grid, rospy.Time.now(), '%s/map' % robot))
 
+    def stop(self):
+        """End the TF thread (the publishers stay: their maps stay latched)."""
+        self._stop = True
+
     def _tf_loop(self):
         while not rospy.is_shutdown() and not self._stop:
             now = rospy.Time.now()
@@ -137,6 +163,17 @@ class RobotPlayer:
                 tfs.append(transform_msg(se2(0.4, -0.2, 0.3), '%s/odom' % r, '%s/base_footprint' % r, now))
             self._tf.sendTransform(tfs)
             time.sleep(0.1)
+
+
+def publish_latched(robots, grids):
+    """Publish each grid once on ``/<robot>/map`` (latched, frame ``<robot>/map``), as a robot
+    whose map does not change. Returns the publishers: keep them, or the maps go with them."""
+    pubs = []
+    for r, g in zip(robots, grids):
+        pub = rospy.Publisher('/%s/map' % r, NumpyGrid, queue_size=1, latch=True)
+        pub.publish(grid_to_msg(g, rospy.Time.now(), '%s/map' % r))
+        pubs.append(pub)
+    return pubs
 
 
 def lookup(buf, parent, child, timeout):
@@ -166,22 +203,6 @@ def make_pieces(world, n, poses, overlap=0.35):
     world frame is ``poses[k]``. Returns [(grid, T_world_k)]."""
     rects = split_rects(world, n, overlap)
     return [cut_piece(world, r, p, 'tb3_%d/map' % k) for k, (r, p) in enumerate(zip(rects, poses))]
-
-
-def revealed(grid, radius):
-    """What a robot has mapped after exploring ``radius`` metres around the middle of its piece,
-    on a grid cropped to it the way gmapping's canvas starts small (new size, new origin a whole
-    number of cells from the full grid's, yaw 0)."""
-    lv = grid.levels()
-    rows, cols = np.nonzero(lv)
-    rc, cc = np.median(rows), np.median(cols)
-    rr, ccs = np.mgrid[0:grid.height, 0:grid.width]
-    seen = np.hypot(rr - rc, ccs - cc) * grid.resolution <= radius
-    data = np.where(seen, grid.data, -1).astype(np.int8)
-    box = known_bbox((data >= 0).astype(np.uint8), 20)
-    r0, r1, c0, c1 = box
-    o = (grid.origin[0] + c0 * grid.resolution, grid.origin[1] + r0 * grid.resolution, 0.0)
-    return Grid(np.ascontiguousarray(data[r0:r1, c0:c1]), grid.resolution, o, grid.frame_id)
 
 
 def sample_world(world_levels, world, T_world_map, res, origin, shape):
@@ -277,7 +298,9 @@ def fmt_pose(T):
     return '(%.3f, %.3f, %.2f deg)' % (x, y, math.degrees(a))
 
 
-# ---------------------------------------------------------------- the test
+def known_cells(msg):
+    """Number of known cells of an OccupancyGrid message."""
+    return int((np.asarray(msg.data) >= 0).sum())
 
 
 def same_map(a, b):
@@ -287,3 +310,70 @@ def same_map(a, b):
             and abs(a.info.origin.position.x - b.info.origin.position.x) < 1e-9
             and abs(a.info.origin.position.y - b.info.origin.position.y) < 1e-9
             and np.array_equal(np.asarray(a.data), np.asarray(b.data)))
+
+
+# ---------------------------------------------------------------- a test on pieces at known poses
+class PiecesTest(unittest.TestCase):
+    """The set-up of a rostest that plays robots carrying pieces of a shipped map cut at known
+    poses (class attributes NODE, ROBOTS, POSES; WORLD, a map in test/data): the world map, the
+    pieces (robot k's in frame ``tb3_k/map``), the true pose of every robot's map frame in the
+    merged frame (the reference tb3_0's), the area the pieces cover, a tf2 buffer, a
+    :class:`Listener` and a :class:`RobotPlayer` (nothing published yet). Plus the checks of a
+    merged map and of the TF against that truth."""
+
+    NODE = 'test_pieces'
+    ROBOTS = ['tb3_0', 'tb3_1']
+    POSES = [(0.0, 0.0, 0.0), (0.0, 0.0, 0.0)]
+    WORLD = 'intel.yaml'
+
+    @classmethod
+    def setUpClass(cls):
+        rospy.init_node(cls.NODE, anonymous=True)
+        cls.world = load_map(data_file(cls.WORLD))
+        cls.pieces = make_pieces(cls.world, len(cls.POSES), cls.POSES)
+        cls.T_world_map = cls.pieces[0][1]          # merged frame = reference tb3_0's map frame
+        cls.T_true = [np.linalg.inv(cls.T_world_map) @ T for _, T in cls.pieces]
+        cls.union = union_mask_of(cls.world, cls.pieces)
+        cls.union_known = int(((cls.world.levels() != UNKNOWN) & (cls.union > 0)).sum())
+        cls.buf = tf2_ros.Buffer(rospy.Duration(30.0))
+        cls.tfl = tf2_ros.TransformListener(cls.buf)
+        cls.listen = Listener()
+        cls.player = RobotPlayer(cls.ROBOTS)
+
+    @classmethod
+    def tearDownClass(cls):
+        cls.player.stop()
+
+    def whole_merge(self, msg):
+        """True when ``msg`` knows as many cells as the union of every piece (within 5%): the
+        merge of all the robots' whole maps has reached /map."""
+        return abs(known_cells(msg) - self.union_known) < 0.05 * self.union_known
+
+    def assert_matches_truth(self, msg, label='merged'):
+        """The merged map ``msg`` is the union of the pieces seen from the reference's frame:
+        its canvas within 4 cells of the one the pieces need, its walls on true walls, no free
+        cell on a wall, nothing outside the pieces, and (nearly) every known cell of the union."""
+        self.assertEqual(msg.header.frame_id, 'map')
+        (_, _, w, h), _ = expected_canvas(self.pieces, self.T_true)
+        self.assertLessEqual(abs(msg.info.width - w), 4, 'width %d, expected %d' % (msg.info.width, w))
+        self.assertLessEqual(abs(msg.info.height - h), 4, 'height %d, expected %d' % (msg.info.height, h))
+        sc = compare_with_truth(msg, self.world, self.T_world_map, self.union)
+        print('%s vs truth: %s' % (label, sc))
+        self.assertGreaterEqual(sc['occ_precision'], 0.95, sc)
+        self.assertLessEqual(sc['free_wrong'], 0.02, sc)
+        self.assertLessEqual(sc['outside'], 0.01, sc)
+        self.assertGreaterEqual(sc['recall'], 0.97, sc)
+        self.assertLess(abs(sc['known'] - sc['union_known']) / float(sc['union_known']), 0.05, sc)
+        return sc
+
+    def assert_tf(self, k, label='', tol_m=0.10, tol_deg=1.0):
+        """The TF ``map -> tb3_k/map`` is robot k's true pose, within ``tol_m`` / ``tol_deg``."""
+        r = self.ROBOTS[k]
+        T = lookup(self.buf, 'map', '%s/map' % r, 5.0)
+        self.assertIsNotNone(T, 'no TF map -> %s/map' % r)
+        d, a = pose_distance(T, self.T_true[k])
+        print('%s TF map -> %s/map %s, true %s: error %.4f m, %.3f deg'
+              % (label, r, fmt_pose(T), fmt_pose(self.T_true[k]), d, math.degrees(a)))
+        self.assertLess(d, tol_m, '%s: %.3f m off' % (r, d))
+        self.assertLess(math.degrees(a), tol_deg, '%s: %.3f deg off' % (r, math.degrees(a)))
+        return T

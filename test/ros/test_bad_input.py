@@ -11,67 +11,41 @@ import math
 import sys
 import threading
 import time
-import unittest
 
-import numpy as np
 import rosnode
 import rospy
 import rostest
-import tf2_ros
 from diagnostic_msgs.msg import DiagnosticStatus
 from rosgraph_msgs.msg import Log
-from rostest_helpers import (
-    Listener,
-    RobotPlayer,
-    compare_with_truth,
-    data_file,
-    expected_canvas,
-    fmt_pose,
-    lookup,
-    make_pieces,
-    same_map,
-    union_mask_of,
-    wait_until,
-)
+from rostest_helpers import PiecesTest, data_file, known_cells, lookup, same_map, wait_until
 
 from multi_map_merge.core.mapio import load_map
-from multi_map_merge.core.transforms import pose_distance
-from multi_map_merge.ros.convert import grid_to_msg
+from multi_map_merge.ros.convert import NumpyGrid, grid_to_msg
 
 PKG = 'multi_map_merge'
-POSES = [(0.5, 1.0, math.radians(-30.0)), (-2.0, 3.0, math.radians(150.0))]
 ESTIMATION_PERIOD = 0.5   # s, estimation_rate in bad_input.test
 
 
-class TestBadInput(unittest.TestCase):
+class TestBadInput(PiecesTest):
+
+    NODE = 'test_bad_input'
+    ROBOTS = ['tb3_0', 'tb3_1']
+    POSES = [(0.5, 1.0, math.radians(-30.0)), (-2.0, 3.0, math.radians(150.0))]
+    two_robot_map = None
 
     @classmethod
     def setUpClass(cls):
-        rospy.init_node('test_bad_input', anonymous=True)
-        cls.world = load_map(data_file('intel.yaml'))
-        cls.pieces = make_pieces(cls.world, 2, POSES)
-        cls.T_world_map = cls.pieces[0][1]
-        cls.T_true = [np.linalg.inv(cls.T_world_map) @ T for _, T in cls.pieces]
-        cls.union = union_mask_of(cls.world, cls.pieces)
+        super().setUpClass()
         cls.house = load_map(data_file('aws_small_house.yaml'))
-        cls.buf = tf2_ros.Buffer(rospy.Duration(30.0))
-        cls.tfl = tf2_ros.TransformListener(cls.buf)
-        cls.listen = Listener()
         cls.logs = []
         cls.log_lock = threading.Lock()
         rospy.Subscriber('/rosout', Log, cls._on_log, queue_size=100)
-        cls.player = RobotPlayer(['tb3_0', 'tb3_1'])
-        cls.two_robot_map = None
 
     @classmethod
     def _on_log(cls, msg):
         if msg.name == '/map_merge':
             with cls.log_lock:
                 cls.logs.append(msg)
-
-    @classmethod
-    def tearDownClass(cls):
-        cls.player._stop = True
 
     def _status(self, robot, after=0.0):
         return self.listen.status(robot, after)
@@ -82,31 +56,19 @@ class TestBadInput(unittest.TestCase):
             self.player.publish('tb3_%d' % k, g)
         ok = wait_until(lambda: (self._status('tb3_1', t0) or (None, {}))[1].get('merged') == 'true', 40.0)
         self.assertTrue(ok, 'tb3_1 was not merged with tb3_0')
-        T = lookup(self.buf, 'map', 'tb3_1/map', 5.0)
-        self.assertIsNotNone(T)
-        d, a = pose_distance(T, self.T_true[1])
-        print('TF map -> tb3_1/map %s, true %s: error %.4f m, %.3f deg'
-              % (fmt_pose(T), fmt_pose(self.T_true[1]), d, math.degrees(a)))
-        self.assertLess(d, 0.10)
-        self.assertLess(math.degrees(a), 1.0)
-        t1 = time.time()
-        msg = wait_until(lambda: self.listen.map_after(t1), 10.0)
-        self.assertIsNotNone(msg, 'no /map')
+        self.assert_tf(1)
+        # the /map of both robots (sent once, latched)
+        msg = wait_until(lambda: self.listen.map_where(self.whole_merge), 10.0)
+        self.assertIsNotNone(msg, 'no /map of both robots: the latest knows %s cells, the two pieces %d'
+                             % (known_cells(self.listen.latest_map()) if self.listen.latest_map() else None,
+                                self.union_known))
         # the two-robot merge is right (so "unchanged" below means right, too)
-        (x0, y0, w, h), _ = expected_canvas(self.pieces, self.T_true)
-        self.assertLessEqual(abs(msg.info.width - w), 4, (msg.info.width, w))
-        self.assertLessEqual(abs(msg.info.height - h), 4, (msg.info.height, h))
-        sc = compare_with_truth(msg, self.world, self.T_world_map, self.union)
-        print('two-robot merge vs truth: %s' % sc)
-        self.assertGreaterEqual(sc['occ_precision'], 0.95, sc)
-        self.assertLessEqual(sc['free_wrong'], 0.02, sc)
-        self.assertLessEqual(sc['outside'], 0.01, sc)
-        self.assertGreaterEqual(sc['recall'], 0.97, sc)
-        self.assertLess(abs(sc['known'] - sc['union_known']) / float(sc['union_known']), 0.05, sc)
+        self.assert_matches_truth(msg, 'two-robot merge')
         type(self).two_robot_map = msg
 
     def test_2_foreign_map_is_not_merged(self):
         self.assertIsNotNone(self.two_robot_map, 'test_1 did not run')
+        n0 = self.listen.maps_received()
         self.player.add('tb3_2')
         t0 = time.time()
         self.player.publish('tb3_2', self.house)
@@ -127,16 +89,22 @@ class TestBadInput(unittest.TestCase):
         self.assertEqual(s.level, DiagnosticStatus.WARN)
         self.assertTrue(s.message.startswith('not merged'), s.message)
         self.assertNotEqual(kv.get('last_result'), 'accepted')
+        # the node's own status warns, naming the robot it cannot merge
+        node = wait_until(lambda: self.listen.node_status(t_try), 5.0)
+        self.assertTrue(node, 'no status of the node itself')
+        print('node: %s' % node[0].message)
+        self.assertEqual(node[0].level, DiagnosticStatus.WARN)
+        self.assertIn('not merged: tb3_2', node[0].message)
+        self.assertEqual(node[1].get('not_merged'), 'tb3_2')
         # tb3_0 and tb3_1 are still placed, so the TF tree itself works
         self.assertIsNotNone(lookup(self.buf, 'map', 'tb3_1/map', 2.0))
-        # the merged map is exactly the two-robot one
-        t1 = time.time()
-        msg = wait_until(lambda: self.listen.map_after(t1), 10.0)
-        self.assertIsNotNone(msg)
+        # the merged map is exactly the two-robot one, and was not even sent again
+        msg = self.listen.latest_map()
         self.assertTrue(same_map(msg, self.two_robot_map),
                         'tb3_2 changed /map: %dx%d -> %dx%d' % (
                             self.two_robot_map.info.width, self.two_robot_map.info.height,
                             msg.info.width, msg.info.height))
+        self.assertEqual(self.listen.maps_received(), n0, '/map sent again for an unchanged merge')
 
     def _malformed(self, kind):
         """A map message for tb3_1 that is wrong in one way."""
@@ -161,6 +129,7 @@ class TestBadInput(unittest.TestCase):
         cases = [('length', 'data length'), ('width0', 'empty grid'), ('nan_origin', 'origin is not finite'),
                  ('resolution0', 'resolution must be'), ('value120', 'outside -1..100')]
         pub = self.player.pubs['tb3_1']
+        n0 = self.listen.maps_received()
         for kind, reason in cases:
             t0 = time.time()
             pub.publish(self._malformed(kind))
@@ -182,12 +151,14 @@ class TestBadInput(unittest.TestCase):
             # tb3_1 keeps its last valid map and placement
             self.assertEqual(st[1].get('merged'), 'true')
 
-        # the node is alive, still publishing, and the merged map has not changed
+        # the node is alive, still publishing, and the merged map has not changed (nor been sent
+        # again); a new subscriber still gets it (latched)
         self.assertTrue(rosnode.rosnode_ping('/map_merge', max_count=1))
         t1 = time.time()
-        msg = wait_until(lambda: self.listen.map_after(t1), 10.0)
-        self.assertIsNotNone(msg, 'no /map after the malformed inputs')
-        self.assertTrue(same_map(msg, self.two_robot_map), 'malformed input changed /map')
+        self.assertTrue(same_map(self.listen.latest_map(), self.two_robot_map), 'malformed input changed /map')
+        self.assertEqual(self.listen.maps_received(), n0, 'malformed input made /map be sent again')
+        fresh = rospy.wait_for_message('/map', NumpyGrid, timeout=5.0)
+        self.assertTrue(same_map(fresh, self.two_robot_map), 'a new subscriber got another /map')
         self.assertTrue(wait_until(lambda: self._status('tb3_0', t1), 5.0), 'diagnostics stopped')
         self.assertIsNotNone(lookup(self.buf, 'map', 'tb3_1/map', 2.0))
 

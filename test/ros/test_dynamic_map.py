@@ -9,10 +9,10 @@ import numpy as np
 import rospy
 import rostest
 from nav_msgs.srv import GetMap
-from rostest_helpers import data_file, make_pieces
+from rostest_helpers import data_file, make_pieces, publish_latched
 
 from multi_map_merge.core.mapio import load_map
-from multi_map_merge.ros.convert import NumpyGrid, grid_to_msg
+from multi_map_merge.ros.convert import NumpyGrid
 from multi_map_merge.ros.tools import init_node, wait_for_merge
 
 ROBOTS = ['tb3_0', 'tb3_1']
@@ -28,11 +28,7 @@ class TestDynamicMap(unittest.TestCase):
             get_map()
         pieces = make_pieces(load_map(data_file('intel.yaml')), 2,
                              [(0.0, 0.0, 0.0), (1.0, -2.0, math.radians(60.0))])
-        pubs = []
-        for r, (g, _) in zip(ROBOTS, pieces):
-            pub = rospy.Publisher('/%s/map' % r, NumpyGrid, queue_size=1, latch=True)
-            pub.publish(grid_to_msg(g, rospy.Time.now(), '%s/map' % r))
-            pubs.append(pub)
+        pubs = publish_latched(ROBOTS, [g for g, _ in pieces])  # noqa: F841 (kept: latched maps)
         diag = wait_for_merge(['tb3_1'], timeout=60.0, settle=2.0)
         self.assertEqual(diag.get('tb3_1', {}).get('merged'), 'true', diag.get('tb3_1'))
         topic = rospy.wait_for_message('/map', NumpyGrid, timeout=10.0)

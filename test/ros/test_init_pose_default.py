@@ -8,11 +8,10 @@ import unittest
 
 import rospy
 import rostest
-from rostest_helpers import data_file, make_pieces
+from rostest_helpers import data_file, make_pieces, publish_latched
 
 from multi_map_merge.core.mapio import load_map
 from multi_map_merge.core.transforms import xyyaw
-from multi_map_merge.ros.convert import NumpyGrid, grid_to_msg
 from multi_map_merge.ros.tools import init_node, lookup_transforms, wait_for_merge
 
 ROBOTS = ['tb3_0', 'tb3_1']
@@ -25,11 +24,7 @@ class TestInitPoseDefault(unittest.TestCase):
         self.assertFalse(rospy.get_param('/map_merge/known_init_poses'))
         self.assertEqual(rospy.get_param('/tb3_1/map_merge/init_pose_x'), 7.0)   # the trap is set
         pieces = make_pieces(load_map(data_file('intel.yaml')), 2, [(0.0, 0.0, 0.0)] * 2)
-        pubs = []
-        for r, (g, _) in zip(ROBOTS, pieces):
-            pub = rospy.Publisher('/%s/map' % r, NumpyGrid, queue_size=1, latch=True)
-            pub.publish(grid_to_msg(g, rospy.Time.now(), '%s/map' % r))
-            pubs.append(pub)
+        pubs = publish_latched(ROBOTS, [g for g, _ in pieces])  # noqa: F841 (kept: latched maps)
         diag = wait_for_merge(['tb3_1'], timeout=60.0, settle=2.0)
         self.assertEqual(diag.get('tb3_1', {}).get('merged'), 'true', diag.get('tb3_1'))
         self.assertNotEqual(diag['tb3_1'].get('via'), 'initial_pose', diag['tb3_1'])

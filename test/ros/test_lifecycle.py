@@ -16,8 +16,9 @@ import yaml
 from map_msgs.msg import OccupancyGridUpdate
 from rosgraph_msgs.msg import Log
 from rospy.numpy_msg import numpy_msg
-from rostest_helpers import Listener, RobotPlayer, data_file, lookup, make_pieces, wait_until
+from rostest_helpers import Listener, RobotPlayer, data_file, known_cells, lookup, make_pieces, wait_until
 from tf2_msgs.msg import TFMessage
+from visualization_msgs.msg import Marker, MarkerArray
 
 from multi_map_merge.core.grid import Grid
 from multi_map_merge.core.mapio import load_map
@@ -41,6 +42,9 @@ class TestLifecycle(unittest.TestCase):
         cls.buf = tf2_ros.Buffer(rospy.Duration(30.0))
         cls.tfl = tf2_ros.TransformListener(cls.buf)
         cls.player = RobotPlayer(['tb3_0', 'tb3_1'])
+        cls.markers = []   # (arrival, MarkerArray) of /map_merge/markers
+        rospy.Subscriber('/map_merge/markers', MarkerArray, lambda m: cls.markers.append((time.time(), m)),
+                         queue_size=20)
 
     @classmethod
     def _on_log(cls, msg):
@@ -73,32 +77,40 @@ class TestLifecycle(unittest.TestCase):
         upd.data = np.full(36, 100, np.int8)
         pub = rospy.Publisher('/tb3_0/map_updates', numpy_msg(OccupancyGridUpdate), queue_size=1, latch=True)
         time.sleep(1.0)
-        t1 = time.time()
         pub.publish(upd)
 
-        def block_in_map():
-            msg = self.listen.map_after(t1)
-            if msg is None:
-                return None
+        def block_in_map(msg):
             m = grid_from_msg(msg, 10 ** 9)
             # tb3_0 is the reference: the merged lattice is its own, shifted by whole cells
             dc = int(round((g0.origin[0] - m.origin[0]) / m.resolution))
             dr = int(round((g0.origin[1] - m.origin[1]) / m.resolution))
-            return (m.data[y + dr:y + dr + 6, x + dc:x + dc + 6] == 100).all() or None
-        self.assertTrue(wait_until(block_in_map, 10.0), 'the map update did not reach /map')
+            return bool((m.data[y + dr:y + dr + 6, x + dc:x + dc + 6] == 100).all())
+        # (/map is sent when the merged map changes: wait for the block in it, not for a message)
+        self.assertTrue(wait_until(lambda: self.listen.map_where(block_in_map), 10.0),
+                        'the map update did not reach /map')
 
         # gmapping restart of tb3_1: a small new map with a new origin
-        known_before = (grid_from_msg(self.listen.map_after(0), 10 ** 9).data >= 0).sum()
+        known_before = known_cells(self.listen.latest_map())
         g1 = self.pieces[1][0]
         small = Grid(g1.data[:60, :60].copy(), g1.resolution, (0.0, 0.0, 0.0), 'tb3_1/map')
         t2 = time.time()
         self.player.publish('tb3_1', small)
         self.assertTrue(wait_until(lambda: self.logged('/map_merge', 'map of tb3_1 restarted', t2), 10.0))
 
-        def shrunk():
-            msg = self.listen.map_after(t2 + 0.5)
-            return msg is not None and (np.asarray(msg.data) >= 0).sum() < 0.8 * known_before
-        self.assertTrue(wait_until(shrunk, 10.0), 'stale cells of the restarted map stayed in /map')
+        self.assertTrue(wait_until(lambda: self.listen.map_where(lambda m: known_cells(m) < 0.8 * known_before), 10.0),
+                        'stale cells of the restarted map stayed in /map')
+
+        # its placement and link were forgotten: the rviz markers drop its arrow and the link
+        def markers_without_tb3_1():
+            for t, arr in list(self.markers):
+                names = [m.text for m in arr.markers if m.ns == 'robot_names']
+                links = [m for m in arr.markers if m.ns == 'links']
+                if t > t2 and arr.markers[0].action == Marker.DELETEALL and names == ['tb3_0 (reference)'] \
+                        and not links:
+                    return arr
+            return None
+        self.assertTrue(wait_until(markers_without_tb3_1, 10.0), 'the markers of the restarted tb3_1 stayed: %s'
+                        % [[(m.ns, m.text) for m in a.markers] for _, a in self.markers[-1:]])
 
         # the robot vanishes (its publisher goes away) and comes back with its full map
         self.player.pubs['tb3_1'].unregister()

@@ -200,6 +200,13 @@ def make_grid(data, width: int, height: int, resolution: float,
     return Grid(arr, float(resolution), tuple(float(v) for v in origin), frame_id, stamp)
 
 
+def same_grid(a: Grid, b: Grid) -> bool:
+    """True when two grids are the same map: geometry (size, resolution, origin), frame and
+    every cell."""
+    return (a.data.shape == b.data.shape and a.resolution == b.resolution and a.origin == b.origin
+            and a.frame_id == b.frame_id and np.array_equal(a.data, b.data))
+
+
 def rescale(grid: Grid, resolution: float) -> Grid:
     """Resample ``grid`` to ``resolution`` metres per cell (same frame and origin corner).
 

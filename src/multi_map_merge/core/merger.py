@@ -25,7 +25,7 @@ import numpy as np
 from . import links, placement, verify
 from .composite import Lattice, Patch, composite, lattice_for, warp_patch
 from .config import MergeConfig
-from .grid import DEFAULT_FREE_THRESH, DEFAULT_OCC_THRESH, Grid, rescale
+from .grid import DEFAULT_FREE_THRESH, DEFAULT_OCC_THRESH, Grid, rescale, same_grid
 from .links import Edge
 from .pair import PairResult, align_pair
 from .placement import Placement
@@ -44,6 +44,7 @@ class RobotMap:
     version: int
     received: float     # seconds (time.time()) when it arrived
     grid: Grid = None   # type: ignore[assignment]  # working-resolution grid, set by at()
+    life: int = 0       # how often the robot was forgotten (map restarts) before this map
 
     @property
     def key(self) -> tuple:
@@ -85,6 +86,7 @@ class MapMerger:
         self._results: Dict[Tuple[str, str], PairResult] = {}
         self._placements: Dict[str, Placement] = {}
         self._patches: Dict[str, Tuple[tuple, Optional[Patch]]] = {}
+        self._lives: Dict[str, int] = {}   # per robot: how often it was forgotten
         self._errors: Dict[str, str] = {}
         self._restored: Dict[Tuple[str, str], Edge] = {}
         self._merged = None       # (patch identities, merged grid) of the last compose
@@ -120,7 +122,7 @@ class MapMerger:
         """
         with self._lock:
             prev = self._maps.get(name)
-            if prev is not None and _same_grid(prev.raw, grid):
+            if prev is not None and same_grid(prev.raw, grid):
                 prev.received = time.time()   # republished unchanged: nothing to recompute
                 self._errors.pop(name, None)
                 return None
@@ -131,7 +133,7 @@ class MapMerger:
                                                            grid.width, grid.height))
                 self._forget_locked(name)
             self._version += 1
-            self._maps[name] = RobotMap(name, grid, self._version, time.time())
+            self._maps[name] = RobotMap(name, grid, self._version, time.time(), life=self._lives.get(name, 0))
             self._errors.pop(name, None)
         if self._default_thresholds():
             # Classify the map once, as it arrives, outside the lock (a big canvas takes a
@@ -140,6 +142,9 @@ class MapMerger:
         return event
 
     def _forget_locked(self, name: str) -> None:
+        # an estimation cycle under way still holds the maps of the robot's former life: what
+        # it derives from them must not come back (see _from_former_life_locked)
+        self._lives[name] = self._lives.get(name, 0) + 1
         had = name in self._placements or any(name in k for k in self._edges)
         if name == self._reference:
             # Every placement is a pose in the reference's frame, which just moved.
@@ -308,6 +313,11 @@ class MapMerger:
                           % (key[0], key[1], 'verified' if ok else 'REJECTED', ag, ov))
         return events
 
+    def _from_former_life_locked(self, m: RobotMap) -> bool:
+        """True when ``m`` (from a cycle's snapshot) is a map the robot had before it was
+        forgotten (its map restarted, or it was removed) while the cycle ran."""
+        return self._lives.get(m.name, 0) != m.life
+
     def _default_thresholds(self) -> bool:
         c = self.config
         return c.free_thresh == DEFAULT_FREE_THRESH and c.occupied_thresh == DEFAULT_OCC_THRESH
@@ -336,6 +346,8 @@ class MapMerger:
         key = (pa.name, ch.name)
         r.stamp = time.time()
         with self._lock:
+            if self._from_former_life_locked(pa) or self._from_former_life_locked(ch):
+                return               # a map restarted (or robot removed) since the cycle began
             self._tried[key] = (pa.version, ch.version)
             self._results[key] = r
             old = self._edges.get(key)
@@ -390,6 +402,12 @@ class MapMerger:
         # the kept placement stays unless the new one is better
         new, events = placement.hysteresis(c, best, old, edges, ref, regraphed)
         with self._lock:
+            if ref in maps and self._from_former_life_locked(maps[ref]):
+                return []            # the reference restarted meanwhile: every placement is void
+            # robots forgotten since the cycle began stay unplaced until estimated again
+            gone = {n for n in new if n in maps and self._from_former_life_locked(maps[n])}
+            new = {n: p for n, p in new.items() if n not in gone}
+            events = [e for e in events if e.split(' ', 1)[0] not in gone]
             if set(new) != set(self._placements) or any(new[n] is not self._placements.get(n) for n in new):
                 self.state_version += 1
             self._placements = new
@@ -417,7 +435,3 @@ def _restarted(old: Grid, new: Grid) -> bool:
     known_new = int(np.count_nonzero(new.data >= 0))
     return known_old > 1000 and known_new < 0.5 * known_old
 
-
-def _same_grid(a: Grid, b: Grid) -> bool:
-    return (a.data.shape == b.data.shape and a.resolution == b.resolution and a.origin == b.origin
-            and a.frame_id == b.frame_id and np.array_equal(a.data, b.data))

@@ -8,6 +8,7 @@ from __future__ import annotations
 import itertools
 import os
 import zlib
+from concurrent.futures.process import BrokenProcessPool
 from typing import TYPE_CHECKING, Dict, List, Tuple
 
 import numpy as np
@@ -82,7 +83,17 @@ class PairWorkers:
         (:func:`pair.align_pair`), the results in ``todo``'s order.
 
         With a worker pool the two stages overlap: waiting for every map's features before
-        the first pair would leave a worker idle while the slowest map is described."""
+        the first pair would leave a worker idle while the slowest map is described.
+
+        A worker that died (killed, e.g. by the kernel's OOM killer) breaks the pool: this
+        cycle raises ``BrokenProcessPool``, and the next one starts a new pool."""
+        try:
+            return self._align_pairs(maps, todo)
+        except BrokenProcessPool:
+            _discard_pool()
+            raise
+
+    def _align_pairs(self, maps: Dict[str, RobotMap], todo: List[Tuple[str, str]]) -> List[PairResult]:
         c = self.config
         seeds = {ab: zlib.crc32(('%s|%s' % ab).encode()) for ab in todo}
         stale = self._stale(maps)
@@ -119,7 +130,13 @@ class PairWorkers:
     def map(self, fn, *iterables):
         """fn over the arguments in the worker pool (in this process when workers == 1)."""
         pool = _pool(self.config.workers)
-        return list(pool.map(fn, *iterables)) if pool is not None else list(map(fn, *iterables))
+        if pool is None:
+            return list(map(fn, *iterables))
+        try:
+            return list(pool.map(fn, *iterables))
+        except BrokenProcessPool:
+            _discard_pool()
+            raise
 
 
 def _worker_init() -> None:
@@ -146,6 +163,14 @@ def _one_blas_thread() -> None:
         if set_threads is not None:
             set_threads(1)
             return
+
+
+def _discard_pool() -> None:
+    """Drop a broken pool: the next :func:`_pool` starts a new one."""
+    global _POOL, _POOL_SIZE
+    if _POOL is not None:
+        _POOL.shutdown(wait=False)
+    _POOL, _POOL_SIZE = None, 0
 
 
 def _pool(workers: int):

@@ -1,10 +1,15 @@
-"""The node's /diagnostics, as plain functions of the merger's status (no node, no rospy):
-what is written for every robot, and how a reader gets it back per robot."""
+"""The node's /diagnostics as plain functions of the merger's status (no node, no rospy): what
+is written for every robot and for the node, and how a reader gets it back per robot.
+
+The node publishes them through ``diagnostic_updater`` (one task per robot, one for the
+node): each function fills the status object the updater hands it (a
+``DiagnosticStatusWrapper``, which is a ``DiagnosticStatus``) or a new ``DiagnosticStatus``.
+"""
 from __future__ import annotations
 
-from typing import Dict
+from typing import Dict, List, Optional
 
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 
 from ..core.merger import RobotStatus
 from ..core.state import placement_dict
@@ -13,59 +18,95 @@ from ..core.state import placement_dict
 FORMAT = {'inlier_ratio': '%.3f', 'agreement': '%.3f', 'inliers': '%d', 'x': '%.3f', 'y': '%.3f', 'yaw': '%.4f'}
 
 
-def diagnostics_msg(status: Dict[str, RobotStatus], gone: Dict[str, bool], cycle_seconds: float,
-                    robots: int, merged: int, stamp, now: float) -> DiagnosticArray:
-    """The node's /diagnostics: one status per robot (its :class:`RobotStatus`, and whether its
-    map publisher is ``gone``) and one for the node (the last estimation cycle's seconds, how
-    many robots and how many merged). ``stamp``: the header's time; ``now``: wall seconds, for
-    the placements' ages."""
-    arr = DiagnosticArray()
-    arr.header.stamp = stamp
-    for robot, st in status.items():
-        s = DiagnosticStatus()
-        s.name = 'multi_map_merge: %s' % robot
-        s.hardware_id = robot
-        kv = [('merged', str(st.merged).lower()), ('reference', str(st.reference).lower()),
-              ('linked_to', ' '.join(st.linked_to) or '-'),
-              ('publisher', 'gone' if gone.get(robot) else 'ok')]
-        if st.placement is not None:
-            d = placement_dict(st.placement)
-            kv += [('via', d['via'] or '-'), ('chain', ' -> '.join(d['chain']))]
-            kv += [(k, FORMAT[k] % d[k]) for k in ('inlier_ratio', 'agreement', 'inliers', 'x', 'y', 'yaw')]
-            kv += [('age_s', '%.1f' % (now - st.placement.stamp))]
-        if st.last_attempt is not None:
-            a = st.last_attempt
-            kv += [('last_pair', st.last_attempt_with), ('last_inlier_ratio', '%.3f' % a.inlier_ratio),
-                   ('last_agreement', '%.3f' % a.agreement), ('last_inliers', str(a.inliers)),
-                   ('last_result', 'accepted' if a.accepted else a.reason)]
-        if st.error:
-            s.level, s.message = DiagnosticStatus.ERROR, 'input ignored: ' + st.error
-        elif st.reference:
-            s.level, s.message = DiagnosticStatus.OK, 'reference map'
-        elif st.merged:
-            s.level, s.message = DiagnosticStatus.OK, 'merged via %s' % st.placement.via
-        elif st.linked_to:
-            s.level = DiagnosticStatus.WARN
-            s.message = ('not merged: linked to %s, but no chain of verified links to the '
-                         'reference yet' % ', '.join(st.linked_to))
-        else:
-            s.level = DiagnosticStatus.WARN
-            s.message = 'not merged' + (': ' + st.last_attempt.reason if st.last_attempt else '')
-        s.values = [KeyValue(k, v) for k, v in kv]
-        arr.status.append(s)
-    s = DiagnosticStatus()
-    s.name, s.hardware_id = 'multi_map_merge: node', 'map_merge'
-    s.level, s.message = DiagnosticStatus.OK, 'estimation cycle %.2f s' % cycle_seconds
-    s.values = [KeyValue('last_estimation_s', '%.3f' % cycle_seconds),
+def robot_diagnostic(robot: str, st: RobotStatus, gone: bool, now: float,
+                     out: Optional[DiagnosticStatus] = None) -> DiagnosticStatus:
+    """One robot's status: merged or not, via which robot, the placement and its quality, the
+    last pair attempt, input errors, and whether its map publisher is ``gone``. The hardware id
+    is the robot (readers key the robots' statuses by it). ``now``: wall seconds, for the
+    placement's age."""
+    s = out if out is not None else DiagnosticStatus()
+    s.hardware_id = robot
+    kv = [('merged', str(st.merged).lower()), ('reference', str(st.reference).lower()),
+          ('linked_to', ' '.join(st.linked_to) or '-'),
+          ('publisher', 'gone' if gone else 'ok')]
+    if st.placement is not None:
+        d = placement_dict(st.placement)
+        kv += [('via', d['via'] or '-'), ('chain', ' -> '.join(d['chain']))]
+        kv += [(k, FORMAT[k] % d[k]) for k in ('inlier_ratio', 'agreement', 'inliers', 'x', 'y', 'yaw')]
+        kv += [('age_s', '%.1f' % (now - st.placement.stamp))]
+    if st.last_attempt is not None:
+        a = st.last_attempt
+        kv += [('last_pair', st.last_attempt_with), ('last_inlier_ratio', '%.3f' % a.inlier_ratio),
+               ('last_agreement', '%.3f' % a.agreement), ('last_inliers', str(a.inliers)),
+               ('last_result', 'accepted' if a.accepted else a.reason)]
+    if st.error:
+        s.level, s.message = DiagnosticStatus.ERROR, 'input ignored: ' + st.error
+    elif st.reference:
+        s.level, s.message = DiagnosticStatus.OK, 'reference map'
+    elif st.merged:
+        s.level, s.message = DiagnosticStatus.OK, 'merged via %s' % st.placement.via
+    elif st.linked_to:
+        s.level = DiagnosticStatus.WARN
+        s.message = ('not merged: linked to %s, but no chain of verified links to the '
+                     'reference yet' % ', '.join(st.linked_to))
+    else:
+        s.level = DiagnosticStatus.WARN
+        s.message = 'not merged' + (': ' + st.last_attempt.reason if st.last_attempt else '')
+    if gone:
+        s.message += ' (vanished: no publisher of its map; its last map and transform are kept)'
+        s.level = max(s.level, DiagnosticStatus.WARN)
+    s.values = [KeyValue(k, v) for k, v in kv]
+    return s
+
+
+def node_diagnostic(status: Dict[str, RobotStatus], gone: Dict[str, bool], est_seconds: float,
+                    est_error: Optional[BaseException], robots: int, merged: int,
+                    out: Optional[DiagnosticStatus] = None) -> DiagnosticStatus:
+    """The node's own status. ERROR when the last estimation cycle raised ``est_error`` (its
+    type and text in the message); else WARN naming the robots that vanished (no publisher of
+    their map), are not merged, or whose last input was refused; else OK. Values: the last
+    cycle's seconds (``last_estimation_s``), how many robots and how many merged, the last
+    error. The hardware id is left to the caller (the updater sets the node's)."""
+    s = out if out is not None else DiagnosticStatus()
+    vanished = sorted(r for r, g in gone.items() if g)
+    unmerged = sorted(r for r, st in status.items() if not st.merged)
+    refused = sorted(r for r, st in status.items() if st.error)
+    if est_error is not None:
+        s.level = DiagnosticStatus.ERROR
+        s.message = 'estimation failed: %s' % error_text(est_error)
+    elif vanished or unmerged or refused or not status:
+        s.level = DiagnosticStatus.WARN
+        parts: List[str] = []
+        if not status:
+            parts.append('no robot map yet')
+        if unmerged:
+            parts.append('not merged: %s' % ', '.join(unmerged))
+        if vanished:
+            parts.append('vanished: %s' % ', '.join(vanished))
+        if refused:
+            parts.append('input ignored: %s' % ', '.join(refused))
+        s.message = '; '.join(parts)
+    else:
+        s.level = DiagnosticStatus.OK
+        s.message = '%d robots merged; estimation cycle %.2f s' % (merged, est_seconds)
+    s.values = [KeyValue('last_estimation_s', '%.3f' % est_seconds),
                 KeyValue('robots', str(robots)),
-                KeyValue('merged', str(merged))]
-    arr.status.append(s)
-    return arr
+                KeyValue('merged', str(merged)),
+                KeyValue('not_merged', ' '.join(unmerged) or '-'),
+                KeyValue('vanished', ' '.join(vanished) or '-'),
+                KeyValue('last_error', error_text(est_error) if est_error is not None else '-')]
+    return s
+
+
+def error_text(e: BaseException) -> str:
+    """``Type: text`` of an exception (the type alone when it has no text)."""
+    text = str(e)
+    return '%s: %s' % (type(e).__name__, text) if text else type(e).__name__
 
 
 def diagnostics_by_robot(msg, out: Dict[str, Dict[str, str]]) -> None:
-    """Store the merger's per-robot diagnostics of ``msg`` in ``out``: robot -> its key/values
-    plus 'message'."""
+    """Store the statuses of ``msg`` in ``out`` by hardware id (the merger's per-robot statuses:
+    robot -> its key/values plus 'message')."""
     for st in msg.status:
         if st.hardware_id:
             d = {kv.key: kv.value for kv in st.values}

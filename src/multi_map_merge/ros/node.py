@@ -3,25 +3,28 @@ merged map, the TF of every placed robot and /diagnostics. See the README's ROS 
 from __future__ import annotations
 
 import fnmatch
+import functools
 import math
 import threading
 import time
-from typing import Dict
+from typing import Dict, Optional
 
+import diagnostic_updater
 import numpy as np
 import rospy
 import tf2_ros
-from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import MapMetaData
 from nav_msgs.srv import GetMap, GetMapResponse
 from std_srvs.srv import Trigger, TriggerResponse
+from visualization_msgs.msg import MarkerArray
 
 from ..core.config import MergeConfig
-from ..core.grid import Grid, GridError, apply_update
+from ..core.grid import Grid, GridError, apply_update, same_grid
 from ..core.merger import MapMerger
 from ..core.state import load_state, save_state
 from .convert import NumpyGrid, NumpyGridUpdate, grid_from_msg, grid_to_msg, metadata, transform_msg
-from .diagnostics import diagnostics_msg
+from .diagnostics import node_diagnostic, robot_diagnostic
+from .markers import markers_key, markers_msg
 from .params import resolve_params
 
 
@@ -49,9 +52,10 @@ class MergeNode:
     """Thin ROS shell around :class:`MapMerger`.
 
     Subscribes ``/<robot>/<map_topic>`` for every discovered (or listed) robot, runs estimation
-    in a worker thread at ``estimation_rate``, composites and publishes ``/map`` at
-    ``merge_rate``, broadcasts ``merged_map_frame -> <robot>/map`` at ``tf_rate``, and
-    publishes per-robot state on ``/diagnostics``.
+    in a worker thread at ``estimation_rate``, composites in another, publishes ``/map``
+    (latched) when the merged map changed (checked at ``merge_rate``), broadcasts
+    ``merged_map_frame -> <robot>/map`` at ``tf_rate``, and publishes its own and every
+    robot's state on ``/diagnostics`` (``diagnostic_updater``).
     """
 
     def __init__(self, config: MergeConfig):
@@ -65,10 +69,19 @@ class MergeNode:
         self._map_pub = rospy.Publisher(config.merged_map_topic, NumpyGrid, queue_size=1, latch=True)
         self._meta_pub = rospy.Publisher(config.merged_map_topic + '_metadata', MapMetaData,
                                          queue_size=1, latch=True)
-        self._diag_pub = rospy.Publisher('/diagnostics', DiagnosticArray, queue_size=10)
         self._tf = tf2_ros.TransformBroadcaster()
+        # rviz: where each robot started and the kept links (latched, sent when they change)
+        self._markers_pub = rospy.Publisher('~markers', MarkerArray, queue_size=1, latch=True)
+        self._markers_key = None
         self._last_est = 0.0
         self._est_seconds = 0.0
+        self._est_error: Optional[BaseException] = None   # what the last estimation cycle raised
+        # /diagnostics: the node's status and one per robot (added as robots appear), at
+        # ~diagnostic_period (the updater's parameter, 1 s by default)
+        self._updater = diagnostic_updater.Updater()
+        self._updater.setHardwareID(rospy.get_name().lstrip('/'))
+        self._updater.add('node', self._node_diagnostic)
+        self._diag_robots: set = set()
         rospy.Service('~reset', Trigger, self._reset)
         # gmapping's service, under gmapping's (relative) name, beside the `map` topic
         rospy.Service('dynamic_map', GetMap, self._get_map)
@@ -86,14 +99,16 @@ class MergeNode:
             self.merger.propose_reference(sorted(r.strip('/') for r in config.robots)[0])
         for r in config.robots:
             self._subscribe(r.strip('/'))
+        self._ready = None   # the latest merged grid, composited off the publishing path
+        self._sent = None    # (grid, placements) of the last /map sent
         self._discover(None)
         rospy.Timer(rospy.Duration(1.0 / config.discovery_rate), self._discover)
         rospy.Timer(rospy.Duration(1.0 / config.merge_rate), self._publish_map)
+        rospy.Timer(rospy.Duration(1.0 / config.merge_rate), self._publish_markers)
         rospy.Timer(rospy.Duration(1.0 / config.tf_rate), self._publish_tf)
-        rospy.Timer(rospy.Duration(1.0), self._publish_diagnostics)
+        rospy.Timer(rospy.Duration(0.2), self._update_diagnostics)
         self._worker = threading.Thread(target=self._estimation_loop, name='estimation', daemon=True)
         self._worker.start()
-        self._ready = None   # the latest merged grid, composited off the publishing path
         self._compositor = threading.Thread(target=self._compositing_loop, name='compositing', daemon=True)
         self._compositor.start()
         rospy.loginfo('multi_map_merge: merging %s maps matching %s; reference %s; merged frame %s',
@@ -231,12 +246,17 @@ class MergeNode:
         period = 1.0 / self.cfg.estimation_rate
         while not rospy.is_shutdown():
             t0 = time.monotonic()
+            failed_before = self._est_error is not None
             try:
                 for event in self.merger.estimate():
                     rospy.loginfo('multi_map_merge: %s', event)
+                self._est_error = None
             except Exception as e:  # a bad cycle must not end estimation for good
                 rospy.logerr('multi_map_merge: estimation failed: %r', e)
+                self._est_error = e
             self._est_seconds = time.monotonic() - t0
+            if (self._est_error is not None) != failed_before:
+                self._updater.force_update()   # the node's status changed level: say so now
             self._last_est = time.time()
             self._persist()
             left = period - self._est_seconds
@@ -270,12 +290,36 @@ class MergeNode:
             time.sleep(max(0.01, period / 2.0 - (time.monotonic() - t0)))
 
     def _publish_map(self, _event) -> None:
+        """Publish the merged map (latched) when it changed since the last one sent: its cells,
+        its geometry, or a robot's placement. An unchanged merge sends nothing: the latched
+        topic already holds it for every subscriber, late ones included, and resending a whole
+        grid at ``merge_rate`` would load every remote subscriber's link for no news."""
         grid = self._ready
         if grid is None:
+            return
+        sent = self._sent
+        if sent is not None and grid is sent[0]:
+            return   # compose() returns the very same grid while nothing moved or changed
+        placed = {r: pl.T.tobytes() for r, pl in self.merger.placements().items()}
+        if sent is not None and placed == sent[1] and same_grid(grid, sent[0]):
+            self._sent = (grid, placed)   # recomposed, but to the same cells
             return
         now = rospy.Time.now()
         self._map_pub.publish(grid_to_msg(grid, now, self.cfg.merged_map_frame))
         self._meta_pub.publish(metadata(grid, now))
+        self._sent = (grid, placed)
+
+    def _publish_markers(self, _event) -> None:
+        """The rviz markers (latched), sent again only when a placement or a kept link changed."""
+        placements, links = self.merger.placements(), list(self.merger.links().values())
+        key = markers_key(placements, links)
+        if key == self._markers_key:
+            return
+        # stamp 0: a placement is a pose between frames, not of a moment; rviz draws it with
+        # the latest TF whatever its fixed frame
+        self._markers_pub.publish(markers_msg(placements, links, self.cfg.merged_map_frame, rospy.Time(0),
+                                              self.cfg.min_agreement))
+        self._markers_key = key
 
     def _publish_tf(self, _event) -> None:
         frames = self.merger.frames()
@@ -292,10 +336,26 @@ class MergeNode:
         if out:
             self._tf.sendTransform(out)
 
-    def _publish_diagnostics(self, _event) -> None:
-        self._diag_pub.publish(diagnostics_msg(self.merger.status(), self._gone, self._est_seconds,
-                                               len(self.merger.frames()), len(self.merger.placements()),
-                                               rospy.Time.now(), time.time()))
+    def _update_diagnostics(self, _event) -> None:
+        """Give every robot seen a status of its own, then let the updater publish (it does at
+        ~diagnostic_period)."""
+        for robot in self.merger.status():
+            if robot not in self._diag_robots:
+                self._diag_robots.add(robot)
+                self._updater.add(robot, functools.partial(self._robot_diagnostic, robot))
+        self._updater.update()
+
+    def _robot_diagnostic(self, robot: str, stat):
+        st = self.merger.status().get(robot)
+        if st is None:   # (robots are never forgotten by the node: kept for completeness)
+            stat.summary(stat.WARN, 'no longer known')
+            stat.hardware_id = robot
+            return stat
+        return robot_diagnostic(robot, st, bool(self._gone.get(robot)), time.time(), stat)
+
+    def _node_diagnostic(self, stat):
+        return node_diagnostic(self.merger.status(), self._gone, self._est_seconds, self._est_error,
+                               len(self.merger.frames()), len(self.merger.placements()), stat)
 
     def _get_map(self, _req) -> GetMapResponse:
         """The merged map as /map has it now (gmapping's ``dynamic_map``); an error before

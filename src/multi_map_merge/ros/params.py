@@ -207,6 +207,11 @@ DEPRECATED: Dict[str, Tuple[str, str]] = {
                          "ROBOTIS's Gazebo spawn positions as priors; set ~known_init_poses"),
 }
 
+#: private parameters read by the libraries the node uses, not by MergeConfig: what they do
+LIBRARY_PARAMS: Dict[str, str] = {
+    'diagnostic_period': "diagnostic_updater's: seconds between /diagnostics messages (default 1)",
+}
+
 #: m-explore's parameters read but without an equivalent here: why
 MEXPLORE_IGNORED: Dict[str, str] = {
     'estimation_confidence': (
@@ -277,7 +282,7 @@ def resolve_params(given: Mapping[str, Any]) -> Resolved:
                       '%g and %g' % (free, occ, default.free_thresh, default.occupied_thresh))
         kw.pop('free_thresh', None)
         kw.pop('occupied_thresh', None)
-    known = set(names) | set(aliases) | set(MEXPLORE_IGNORED)
+    known = set(names) | set(aliases) | set(MEXPLORE_IGNORED) | set(LIBRARY_PARAMS)
     for name in sorted(given):
         if name in known:
             continue

@@ -251,3 +251,29 @@ def test_a_small_map_merges_into_a_big_one_described_coarser(intel):
         assert 'small' in m.placements(), m.status()['small']
         d, deg = pose_error(m.placements()['small'].T, truth(T_big, T_small))
         assert d < 0.1 and deg < 1.0, (rect, d, deg)
+
+
+def test_a_map_restarted_during_an_estimation_cycle_is_not_placed_by_it(intel):
+    """The node estimates in a thread of its own: a gmapping restart can arrive while a cycle
+    runs on the robot's former map. Whatever that cycle derives from the former map (the pair's
+    link, the placement) must not come back for the restarted one."""
+    ps = strip_pieces(intel, [(0, 0, 0), (3, -2, 2.0), (-4, 1, -2.5)])
+    m = MapMerger(MergeConfig(reference_robot='a', workers=1))
+    for n, (g, _) in zip('ab', ps):
+        m.update_map(n, g)
+    # one cycle, step by step as estimate() runs it, with the restart of b in the middle
+    ref, maps = m._snapshot()
+    todo = m._pairs(maps, ref)
+    estimates = m._workers.align_pairs(maps, todo)
+    assert any(r.accepted for r in estimates)       # the former map does link
+    g = ps[1][0]
+    event = m.update_map('b', Grid(g.data[:60, :60].copy(), g.resolution, (0.0, 0.0, 0.0)))
+    assert event and 'restarted' in event
+    for (a, b), r in zip(todo, estimates):
+        m._keep(maps[a], maps[b], r)
+    events = m._place(maps, ref)
+    assert 'b' not in m.placements() and not m.links(), (m.placements(), events)
+    assert not any(e.startswith('b ') for e in events)
+    # and the next cycle estimates the restarted map itself
+    m.estimate()
+    assert m.status()['b'].last_attempt is not None

@@ -303,6 +303,8 @@ def test_rviz_config():
         assert d['Alpha'] == 0.4 and d['Enabled'] is False
     (tf,) = [d for d in vm['Displays'] if d['Class'] == 'rviz/TF']
     assert tf['Enabled'] is True and tf['Show Names'] is True
+    (markers,) = [d for d in vm['Displays'] if d['Class'] == 'rviz/MarkerArray']
+    assert markers['Enabled'] is True and markers['Marker Topic'] == '/map_merge/markers'
     assert vm['Views']['Current']['Class'] == 'rviz/TopDownOrtho'
 
 

@@ -10,7 +10,7 @@ import yaml
 from conftest import REPO
 
 from multi_map_merge.core.config import MergeConfig
-from multi_map_merge.ros.params import MEXPLORE_ALIASES, MEXPLORE_IGNORED, RULES, resolve_params
+from multi_map_merge.ros.params import LIBRARY_PARAMS, MEXPLORE_ALIASES, MEXPLORE_IGNORED, RULES, resolve_params
 
 
 def shipped_yaml():
@@ -98,6 +98,17 @@ def test_an_unknown_parameter_is_one_warning_naming_the_closest_known(typo, clos
     res = resolve_params({typo: 1.0})
     assert res.warnings == ['unknown parameter ~%s ignored: did you mean ~%s?' % (typo, closest)]
     assert res.config == MergeConfig() and not res.errors
+
+
+def test_diagnostic_updaters_period_is_known_and_documented():
+    """~diagnostic_period is read by diagnostic_updater, not by us: no unknown-parameter warning,
+    and a row in the README's Parameters table."""
+    res = resolve_params({'diagnostic_period': 2.0})
+    assert not res.warnings and not res.errors and res.config == MergeConfig()
+    with open(os.path.join(REPO, 'README.md')) as f:
+        text = f.read()
+    for name in LIBRARY_PARAMS:
+        assert '| `~%s` |' % name in text, name
 
 
 def test_an_unknown_parameter_like_no_known_one_is_still_warned():

@@ -1,0 +1,85 @@
+"""Markers for rviz, as a plain function of the placements and the kept links (no node, no
+rospy): where every merged robot started (its map frame's origin) in the merged frame, labelled,
+and a line per kept link between two placed robots, coloured by how well it verified."""
+from __future__ import annotations
+
+import math
+from typing import Dict, Iterable, List, Tuple
+
+from geometry_msgs.msg import Point, Quaternion
+from std_msgs.msg import ColorRGBA
+from visualization_msgs.msg import Marker, MarkerArray
+
+from ..core.links import Edge
+from ..core.placement import Placement
+from ..core.transforms import xyyaw
+
+ARROW_M = 0.6      # length of a robot's arrow
+TEXT_M = 0.35      # height of the labels
+LINE_M = 0.05      # width of a link's line
+
+
+def link_colour(agreement: float, min_agreement: float) -> ColorRGBA:
+    """Red for a link that barely verified (wall agreement at ``min_agreement``), green at 1.0."""
+    span = max(1e-6, 1.0 - min_agreement)
+    c = min(1.0, max(0.0, (agreement - min_agreement) / span))
+    return ColorRGBA(1.0 - c, c, 0.0, 1.0)
+
+
+def _marker(frame: str, stamp, ns: str, mid: int, kind: int) -> Marker:
+    m = Marker()
+    m.header.frame_id, m.header.stamp = frame, stamp
+    m.ns, m.id, m.type, m.action = ns, mid, kind, Marker.ADD
+    m.pose.orientation.w = 1.0
+    return m
+
+
+def markers_msg(placements: Dict[str, Placement], links: Iterable[Edge], frame: str, stamp,
+                min_agreement: float) -> MarkerArray:
+    """The whole marker set: first a DELETEALL (robots and links that are gone disappear), then
+    per placed robot an arrow at its map frame's origin along its x axis (ns ``robots``) and its
+    name (ns ``robot_names``), and per kept link whose two robots are placed a line between
+    their origins (ns ``links``, :func:`link_colour`) labelled with its inlier ratio and
+    agreement (ns ``link_labels``). Ids are the robots' and links' ranks by name."""
+    arr = MarkerArray()
+    clear = _marker(frame, stamp, '', 0, Marker.ARROW)
+    clear.action = Marker.DELETEALL
+    arr.markers.append(clear)
+    where: Dict[str, Tuple[float, float]] = {}
+    for i, robot in enumerate(sorted(placements)):
+        pl = placements[robot]
+        x, y, yaw = xyyaw(pl.T)
+        where[robot] = (x, y)
+        colour = ColorRGBA(1.0, 1.0, 1.0, 1.0) if not pl.via else ColorRGBA(0.2, 0.8, 1.0, 1.0)
+        a = _marker(frame, stamp, 'robots', i, Marker.ARROW)
+        a.pose.position.x, a.pose.position.y = x, y
+        a.pose.orientation = Quaternion(0.0, 0.0, math.sin(yaw / 2.0), math.cos(yaw / 2.0))
+        a.scale.x, a.scale.y, a.scale.z = ARROW_M, 0.1, 0.1
+        a.color = colour
+        t = _marker(frame, stamp, 'robot_names', i, Marker.TEXT_VIEW_FACING)
+        t.pose.position.x, t.pose.position.y, t.pose.position.z = x, y + 0.4, 0.2
+        t.scale.z = TEXT_M
+        t.color = colour
+        t.text = robot if pl.via else '%s (reference)' % robot
+        arr.markers += [a, t]
+    shown: List[Edge] = sorted((e for e in links if e.parent in where and e.child in where),
+                               key=lambda e: (e.parent, e.child))
+    for j, e in enumerate(shown):
+        (xa, ya), (xb, yb) = where[e.parent], where[e.child]
+        line = _marker(frame, stamp, 'links', j, Marker.LINE_LIST)
+        line.points = [Point(xa, ya, 0.0), Point(xb, yb, 0.0)]
+        line.scale.x = LINE_M
+        line.color = link_colour(e.agreement, min_agreement)
+        label = _marker(frame, stamp, 'link_labels', j, Marker.TEXT_VIEW_FACING)
+        label.pose.position.x, label.pose.position.y, label.pose.position.z = (xa + xb) / 2, (ya + yb) / 2, 0.2
+        label.scale.z = TEXT_M * 0.8
+        label.color = line.color
+        label.text = '%s-%s: inlier ratio %.2f, agreement %.2f' % (e.parent, e.child, e.inlier_ratio, e.agreement)
+        arr.markers += [line, label]
+    return arr
+
+
+def markers_key(placements: Dict[str, Placement], links: Iterable[Edge]) -> tuple:
+    """What the markers are drawn from: they are published again only when this changes."""
+    return (tuple(sorted((r, pl.T.tobytes(), pl.via) for r, pl in placements.items())),
+            tuple(sorted((e.parent, e.child, e.inlier_ratio, e.agreement) for e in links)))
