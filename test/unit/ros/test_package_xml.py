@@ -23,7 +23,7 @@ MODULE_KEYS = {
     'rostest': 'rostest', 'rosnode': 'rosnode', 'roslib': 'roslib', 'tf2_ros': 'tf2_ros',
     'tf2_msgs': 'tf2_msgs', 'nav_msgs': 'nav_msgs', 'map_msgs': 'map_msgs',
     'geometry_msgs': 'geometry_msgs', 'sensor_msgs': 'sensor_msgs', 'rosgraph_msgs': 'rosgraph_msgs',
-    'diagnostic_msgs': 'diagnostic_msgs', 'std_srvs': 'std_srvs',
+    'diagnostic_msgs': 'diagnostic_msgs', 'std_srvs': 'std_srvs', 'std_msgs': 'std_msgs',
 }
 # optional: imported only where ImportError is handled, and deliberately not declared
 OPTIONAL = {'open3d': 'python3-open3d-pip'}
