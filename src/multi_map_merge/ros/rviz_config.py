@@ -4,7 +4,14 @@ it. Per robot it keeps one map display (``<robot> map`` on ``/<robot>/map``, as 
 first robot display) and one "2D Pose Estimate" tool publishing on
 ``/<robot>/map_merge/prior`` (the node reads it as that robot's prior, see the README). Every
 other part of the template (the merged map, TF, the view, the window layout under ``Window
-Geometry``) is kept as it is."""
+Geometry``) is kept as it is.
+
+rviz 1 names a tool by its class alone (``Tool::load`` reads no ``Name``), so every robot's tool
+would say "2D Pose Estimate". Where rviz's Python bindings are installed (``python3-rviz`` on
+Debian, part of ``ros-noetic-rviz``) rviz is run through them and each of those tools is
+renamed ``<robot> prior``, on its toolbar button and in Tool Properties; else the ``rviz``
+executable is started on the config (the tools keep rviz's name, in the robots' order, each
+showing its topic in Tool Properties)."""
 from __future__ import annotations
 
 import argparse
@@ -84,6 +91,8 @@ def robots_rviz_main(argv: Optional[List[str]] = None) -> int:
     ap.add_argument('--output', default='', help='where to write the config (default: '
                     '$ROS_HOME/multi_map_merge_<robots>.rviz)')
     ap.add_argument('--write-only', action='store_true', help='write the config, do not start rviz')
+    ap.add_argument('--print-tools', action='store_true', help='start rviz (needs a display and a '
+                    'master), print its toolbar\'s tool names, and exit')
     a = ap.parse_args([x for x in argv if ':=' not in x])
     robots = a.robots.split()
     template = a.template or default_template()
@@ -105,5 +114,55 @@ def robots_rviz_main(argv: Optional[List[str]] = None) -> int:
     if a.write_only:
         return 0
     sys.stdout.flush()
-    os.execvp('rviz', ['rviz', '-d', out] + ros_args)
-    return 0   # not reached
+    try:
+        from rviz import bindings  # noqa: F401
+    except ImportError as e:
+        if a.print_tools:
+            print('robots_rviz: rviz\'s Python bindings are not installed (%s)' % e, file=sys.stderr)
+            return 2
+        print('robots_rviz: rviz\'s Python bindings are not installed (%s): starting rviz, whose '
+              'prior tools are all called "2D Pose Estimate", in the order %s' % (e, ' '.join(robots)))
+        sys.stdout.flush()
+        os.execvp('rviz', ['rviz', '-d', out] + ros_args)
+    return run_rviz(out, robots, a.print_tools)
+
+
+def run_rviz(config: str, robots: List[str], print_tools: bool = False) -> int:
+    """rviz (its VisualizationFrame, through the Python bindings) on ``config``, each robot's
+    prior tool renamed ``<robot> prior``. ``print_tools``: print the toolbar's names and quit."""
+    from python_qt_binding.QtCore import QTimer
+    from python_qt_binding.QtWidgets import QApplication, QToolBar
+
+    from rviz import bindings as rviz
+    app = QApplication(sys.argv[:1])
+    frame = rviz.VisualizationFrame()
+    frame.setSplashPath('')
+    frame.initialize(config)
+    frame.show()
+
+    def label():
+        tm = frame.getManager().getToolManager()
+        tools = [tm.getTool(i) for i in range(tm.numTools())]
+        priors = [t for t in tools if t.getClassId() == 'rviz/SetInitialPose']
+        if len(priors) != len(robots):
+            print('robots_rviz: %d prior tools for %d robots: names left as they are'
+                  % (len(priors), len(robots)), file=sys.stderr)
+            return
+        old = priors[0].getName()
+        actions = [act for bar in frame.findChildren(QToolBar) for act in bar.actions() if act.text() == old]
+        for robot, tool in zip(robots, priors):
+            tool.setName('%s prior' % robot)
+        if len(actions) == len(robots):     # the toolbar's buttons, in the tools' order
+            for robot, act in zip(robots, actions):
+                act.setText('%s prior' % robot)
+                act.setToolTip('where %s started: its map frame in the merged frame (/%s)'
+                               % (robot, PRIOR_TOPIC % robot))
+        if print_tools:
+            names = [act.text() for bar in frame.findChildren(QToolBar) for act in bar.actions() if act.text()]
+            print('robots_rviz tools: %s' % ' | '.join(names))
+            print('robots_rviz tool properties: %s' % ' | '.join(t.getName() for t in tools))
+            sys.stdout.flush()
+            app.quit()
+
+    QTimer.singleShot(500, label)
+    return app.exec_()

@@ -24,6 +24,7 @@ MODULE_KEYS = {
     'tf2_msgs': 'tf2_msgs', 'nav_msgs': 'nav_msgs', 'map_msgs': 'map_msgs',
     'geometry_msgs': 'geometry_msgs', 'sensor_msgs': 'sensor_msgs', 'rosgraph_msgs': 'rosgraph_msgs',
     'diagnostic_msgs': 'diagnostic_msgs', 'std_srvs': 'std_srvs', 'std_msgs': 'std_msgs',
+    'rviz': 'rviz', 'python_qt_binding': 'python_qt_binding',
 }
 # optional: imported only where ImportError is handled, and deliberately not declared
 OPTIONAL = {'open3d': 'python3-open3d-pip'}
