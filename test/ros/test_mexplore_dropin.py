@@ -2,7 +2,7 @@
 """rostest: our node as a drop-in for m-explore's.
 
 m-explore's own launch file for its map_merge node (multirobot_map_merge 2.1.4,
-map_merge/launch/map_merge.launch, shipped as test/data/mexplore/map_merge.launch) is read and
+map_merge/launch/map_merge.launch, shipped as test/data/mexplore/map_merge.launch.xml) is read and
 only the node's ``pkg`` and ``type`` are changed (ElementTree; every other attribute and every
 parameter is checked to be unchanged), then started with roslaunch. Its parameters are
 m-explore's (robot_map_topic, robot_namespace "", world_frame "world", merging_rate 0.5,
@@ -32,7 +32,7 @@ from multi_map_merge.core.transforms import inverse, pose_distance
 PKG = 'multi_map_merge'
 ROBOTS = ['tb3_0', 'tb3_1', 'tb3_2']
 POSES = [(1.5, -1.0, math.radians(20.0)), (-3.0, 2.0, math.radians(180.0)), (4.0, 3.5, math.radians(-95.0))]
-MEXPLORE = os.path.join(DATA, 'mexplore', 'map_merge.launch')
+MEXPLORE = os.path.join(DATA, 'mexplore', 'map_merge.launch.xml')   # renamed: see ATTRIBUTION.md
 
 
 def dropin_launch(path):
