@@ -109,11 +109,12 @@ def prefixed(prefix, frame):
     return '%s/%s' % (prefix.strip('/'), frame) if prefix and prefix.strip('/') else frame
 
 
-def burger_tree():
-    """{child link: (parent link, joint type)} of ROBOTIS's burger URDF. Its links and joints
-    are written out literally (no xacro macro makes them), so reading the xacro's XML gives
-    what xacro would."""
-    root = ET.parse(BURGER).getroot()
+def burger_tree(urdf=None):
+    """(links, {child link: (parent link, joint type)}) of ROBOTIS's burger URDF: ``urdf``, the
+    robot_description xacro made, where xacro is installed; else the xacro file itself. Its
+    links and joints are written out literally (no xacro macro makes them), so reading the
+    xacro's XML gives what xacro would."""
+    root = ET.fromstring(urdf) if urdf else ET.parse(BURGER).getroot()
     links = [el.get('name') for el in root if el.tag == 'link']
     assert links and not any('$' in n for n in links), links
     tree = {}
@@ -179,7 +180,9 @@ def robotis_remote(robot):
     else:
         cfg = resolve(None, ['multi_robot_name:=%s' % robot], ns=robot, text=text)
     rsp = node(cfg, 'robot_state_publisher')
-    return search_param(cfg, rsp, 'tf_prefix'), topic(rsp, 'joint_states')
+    desc = search_param(cfg, rsp, 'robot_description')
+    assert (desc is not None) == (text is None)       # made by xacro exactly when it ran
+    return search_param(cfg, rsp, 'tf_prefix'), topic(rsp, 'joint_states'), desc
 
 
 def our_robot(robot, *args):
@@ -203,8 +206,8 @@ def our_robot(robot, *args):
 
 def frames_published(robot, lds_model):
     """Every frame ROBOTIS's nodes publish for the robot: odometry's, robot_state_publisher's."""
-    links, tree = burger_tree()
-    tf_prefix, js_topic = robotis_remote(robot)
+    tf_prefix, js_topic, urdf = robotis_remote(robot)
+    links, tree = burger_tree(urdf)
     r = robotis_robot(robot, lds_model)
     assert js_topic == r['joint_states_topic'] == '/%s/joint_states' % robot
     assert r['joint_states_frame'] in {prefixed(tf_prefix, n) for n in links}
