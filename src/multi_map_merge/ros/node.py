@@ -23,15 +23,7 @@ from ..core.grid import Grid, GridError, apply_update
 from ..core.merger import MapMerger
 from ..core.state import load_state, save_state
 from ..core.transforms import se2, xyyaw
-from .convert import (
-    NumpyGrid,
-    NumpyGridUpdate,
-    grid_from_msg,
-    grid_to_msg,
-    metadata,
-    quaternion_yaw,
-    transform_msg,
-)
+from .convert import NumpyGrid, NumpyGridUpdate, grid_from_msg, grid_to_msg, metadata, quaternion_yaw, transform_msg
 from .diagnostics import diagnostics_msg
 from .params import resolve_params
 
