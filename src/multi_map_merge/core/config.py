@@ -64,11 +64,6 @@ class MergeConfig:
     RENAMED: ClassVar[Dict[str, str]] = {'min_reliability': 'min_inlier_ratio',
                                          'transforms_file': 'state_file'}
 
-    @property
-    def transforms_file(self) -> str:
-        """The former name of :attr:`state_file`, read by ros/node.py until it says state_file."""
-        return self.state_file
-
     @classmethod
     def former_name_wins(cls, given: Dict[str, Any], old: str) -> bool:
         """Whether ``given`` (parameters by name) is read by the former name ``old`` of a

@@ -18,7 +18,7 @@ import math
 import threading
 import time
 from dataclasses import dataclass
-from typing import Dict, List, Optional, Tuple
+from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -30,7 +30,7 @@ from .links import Edge
 from .pair import PairResult, align_pair
 from .placement import Placement
 from .state import link_dict, link_from_dict, placement_dict
-from .transforms import image_to_pose
+from .transforms import image_to_pose, inverse, pose_distance, se2
 from .workers import PairWorkers
 
 
@@ -92,6 +92,7 @@ class MapMerger:
         self._merged = None       # (patch identities, merged grid) of the last compose
         self._graph_key = None    # the links the last pose-graph placement was made of
         self.state_version = 0    # bumped whenever links or placements change (for persistence)
+        self._prior_epoch = 0     # bumped when a prior changes: a cycle begun before is discarded
 
     # ------------------------------------------------------------------ inputs
     @property
@@ -171,6 +172,38 @@ class MapMerger:
             self._workers.forget(name)
             self._forget_locked(name)
 
+    def set_initial_pose(self, name: str, pose: Optional[Sequence[float]]) -> List[str]:
+        """Set (``[x, y, yaw]``, the meaning of ``initial_poses``) or remove (None) one robot's
+        prior while running. Its pairs are estimated again under the new prior (the gate of
+        :func:`pair.contradicts_prior`), its kept links that contradict it are dropped now, and
+        the placements made from priors (``trust_initial_poses``) are made again. An estimation
+        cycle that began before the change is discarded. Returns what was dropped."""
+        events = []
+        with self._lock:
+            priors = dict(self.config.initial_poses)
+            if pose is None:
+                priors.pop(name, None)
+            else:
+                priors[name] = [float(v) for v in pose]
+            # a new dict, not an update: the estimation thread may be reading the old one
+            self.config.initial_poses = priors
+            self._prior_epoch += 1
+            for k in [k for k in self._tried if name in k]:
+                del self._tried[k]
+            tol_d, tol_a = self.config.initial_pose_tolerance
+            for k, e in list(self._edges.items()):
+                if name not in k or e.parent not in priors or e.child not in priors:
+                    continue
+                d, a = pose_distance(e.T, inverse(se2(*priors[e.parent])) @ se2(*priors[e.child]))
+                if d > tol_d or a > tol_a:
+                    del self._edges[k]
+                    events.append('link %s -> %s dropped: it contradicts the new prior of %s by %.2f m, '
+                                  '%.1f deg' % (e.parent, e.child, name, d, math.degrees(a)))
+            for n in [n for n, pl in self._placements.items() if pl.via == placement.PRIOR]:
+                del self._placements[n]
+            self.state_version += 1
+        return events
+
     def reset(self) -> None:
         """Forget every transform (maps are kept)."""
         with self._lock:
@@ -197,6 +230,7 @@ class MapMerger:
         ref, maps = self._snapshot()
         if not maps:
             return []
+        epoch = self._prior_epoch
         # (0) links saved by an earlier run are used only once the grids confirm them
         events = self._verify_restored(maps)
         # the pairs of robots whose maps changed since they were last estimated
@@ -204,6 +238,8 @@ class MapMerger:
         # (1) AKAZE features of the maps that changed, (2) match, (3) rigid RANSAC + inlier
         # ratio, (4) verify on the grids and refine: every pair in the worker processes
         results = self._workers.align_pairs(maps, todo)
+        if epoch != self._prior_epoch:
+            return events     # a prior changed meanwhile: these were gated by the old one
         # (4) keep each pair's link if verified and more reliable than the kept one
         for (a, b), r in zip(todo, results):
             self._keep(maps[a], maps[b], r)

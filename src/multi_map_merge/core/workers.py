@@ -142,7 +142,12 @@ class PairWorkers:
 def _worker_init() -> None:
     """One OpenCV thread and one BLAS thread per worker: the pool already keeps every core
     busy, and the libraries' own threads on top of it only contend (two workers running two
-    threads each are slower than two workers with one each)."""
+    threads each are slower than two workers with one each).
+    Ctrl-C (roslaunch's SIGINT to the process group) is the parent's to handle: a worker
+    interrupted while waiting for work only printed a KeyboardInterrupt traceback; it ends
+    when the parent shuts the pool down, or when the parent is gone (its queue closes)."""
+    import signal
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     import cv2
     cv2.setNumThreads(1)
     _one_blas_thread()

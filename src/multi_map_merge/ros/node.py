@@ -13,8 +13,10 @@ import diagnostic_updater
 import numpy as np
 import rospy
 import tf2_ros
+from geometry_msgs.msg import PoseWithCovarianceStamped
 from nav_msgs.msg import MapMetaData
 from nav_msgs.srv import GetMap, GetMapResponse
+from std_msgs.msg import Empty
 from std_srvs.srv import Trigger, TriggerResponse
 from visualization_msgs.msg import MarkerArray
 
@@ -22,7 +24,8 @@ from ..core.config import MergeConfig
 from ..core.grid import Grid, GridError, apply_update, same_grid
 from ..core.merger import MapMerger
 from ..core.state import load_state, save_state
-from .convert import NumpyGrid, NumpyGridUpdate, grid_from_msg, grid_to_msg, metadata, transform_msg
+from ..core.transforms import se2, xyyaw
+from .convert import NumpyGrid, NumpyGridUpdate, grid_from_msg, grid_to_msg, metadata, quaternion_yaw, transform_msg
 from .diagnostics import node_diagnostic, robot_diagnostic
 from .markers import markers_key, markers_msg
 from .params import resolve_params
@@ -85,16 +88,20 @@ class MergeNode:
         rospy.Service('~reset', Trigger, self._reset)
         # gmapping's service, under gmapping's (relative) name, beside the `map` topic
         rospy.Service('dynamic_map', GetMap, self._get_map)
-        if config.transforms_file:
+        if config.state_file:
             try:
-                n = self.merger.restore_state(load_state(config.transforms_file))
+                n = self.merger.restore_state(load_state(config.state_file))
                 rospy.loginfo('multi_map_merge: %d saved links read from %s; each is verified again '
-                              'before use', n, config.transforms_file)
+                              'before use', n, config.state_file)
             except ValueError as e:
-                rospy.logerr('multi_map_merge: %s (starting without saved transforms)', e)
+                rospy.logerr('multi_map_merge: %s (starting without its saved links)', e)
             self._saved_version = self.merger.state_version
         self._gone: Dict[str, bool] = {}
         self._frame_warned: Dict[str, str] = {}
+        self._prior_subs: Dict[str, list] = {}
+        self._prior_lock = threading.Lock()
+        self._implicit_ref_prior = ''   # the reference given [0, 0, 0] for run-time priors
+        self._tf_buffer = None          # made on the first prior given in another frame
         if config.robots:
             self.merger.propose_reference(sorted(r.strip('/') for r in config.robots)[0])
         for r in config.robots:
@@ -168,6 +175,99 @@ class MergeNode:
                                  callback_args=robot, queue_size=10, buff_size=2 ** 24)]
         rospy.loginfo('multi_map_merge: robot %s found, subscribed to %s', robot, topic)
         self._read_init_pose(robot)
+        self._subscribe_prior(robot)
+
+    # -- priors given while running (rviz's 2D Pose Estimate)
+    def _subscribe_prior(self, robot: str) -> None:
+        """``/<robot>/map_merge/prior`` (geometry_msgs/PoseWithCovarianceStamped, what rviz's
+        2D Pose Estimate publishes): where the robot's map frame origin (its start pose) lies
+        in the merged frame; ``/<robot>/map_merge/clear_prior`` (std_msgs/Empty) removes it."""
+        with self._prior_lock:
+            if robot in self._prior_subs:
+                return
+            self._prior_subs[robot] = [
+                rospy.Subscriber('/%s/map_merge/prior' % robot, PoseWithCovarianceStamped,
+                                 self._on_prior, callback_args=robot, queue_size=1),
+                rospy.Subscriber('/%s/map_merge/clear_prior' % robot, Empty,
+                                 self._on_clear_prior, callback_args=robot, queue_size=1)]
+
+    def _prior_in_merged_frame(self, msg) -> np.ndarray:
+        """The 3x3 pose of a PoseWithCovarianceStamped in the merged frame (through TF when
+        it is given in another frame); ValueError saying why not."""
+        p, q = msg.pose.pose.position, msg.pose.pose.orientation
+        values = [p.x, p.y, q.x, q.y, q.z, q.w]
+        if not all(math.isfinite(v) for v in values):
+            raise ValueError('not finite: %s' % values)
+        if q.x * q.x + q.y * q.y + q.z * q.z + q.w * q.w < 1e-6:
+            raise ValueError('its orientation is not a rotation (a zero quaternion)')
+        T = se2(p.x, p.y, quaternion_yaw(q))
+        frame = msg.header.frame_id.lstrip('/')
+        merged = self.cfg.merged_map_frame.lstrip('/')
+        if not frame or frame == merged:
+            return T
+        if self._tf_buffer is None:
+            self._tf_buffer = tf2_ros.Buffer()
+            self._tf_listener = tf2_ros.TransformListener(self._tf_buffer)
+        try:
+            t = self._tf_buffer.lookup_transform(merged, frame, rospy.Time(0), rospy.Duration(2.0))
+        except (tf2_ros.LookupException, tf2_ros.ConnectivityException, tf2_ros.ExtrapolationException,
+                tf2_ros.TransformException) as e:
+            raise ValueError('no TF from its frame "%s" to the merged frame "%s": %s'
+                             % (frame, merged, e)) from None
+        tr = t.transform
+        return se2(tr.translation.x, tr.translation.y, quaternion_yaw(tr.rotation)) @ T
+
+    def _on_prior(self, msg, robot: str) -> None:
+        topic = '/%s/map_merge/prior' % robot
+        try:
+            T = self._prior_in_merged_frame(msg)
+        except ValueError as e:
+            rospy.logerr('multi_map_merge: ignoring the prior of %s on %s: %s', robot, topic, e)
+            return
+        with self._prior_lock:
+            ref = self.merger.reference
+            priors = self.cfg.initial_poses
+            if robot == ref:
+                rospy.logwarn('multi_map_merge: ignoring the prior of %s on %s: %s is the reference, its map '
+                              'frame is the merged frame (give the other robots\' priors)', robot, topic, robot)
+                return
+            if ref in priors:
+                pose = list(xyyaw(se2(*priors[ref]) @ T))   # into the frame common to all priors
+            elif any(r != robot for r in priors):
+                rospy.logerr('multi_map_merge: ignoring the prior of %s on %s: the other priors (%s) are in '
+                             'a frame of their own and the reference %s has none, so a pose in the merged '
+                             'frame cannot be related to them; give %s a prior in ~initial_poses',
+                             robot, topic, ', '.join(sorted(priors)), ref, ref)
+                return
+            else:
+                # the merged frame (the reference's map frame) becomes the frame of the priors
+                self._implicit_ref_prior = ref
+                self.merger.set_initial_pose(ref, [0.0, 0.0, 0.0])
+                pose = list(xyyaw(T))
+            for event in self.merger.set_initial_pose(robot, pose):
+                rospy.logwarn('multi_map_merge: %s', event)
+        x, y, yaw = xyyaw(T)
+        rospy.loginfo('multi_map_merge: prior of %s from %s: its map frame at x=%.3f m y=%.3f m yaw=%.2f deg '
+                      'in %s%s; links contradicting it by more than %.2f m or %.1f deg are rejected%s',
+                      robot, topic, x, y, math.degrees(yaw), self.cfg.merged_map_frame,
+                      ' (given in %s)' % msg.header.frame_id if msg.header.frame_id.lstrip('/') not in
+                      ('', self.cfg.merged_map_frame.lstrip('/')) else '',
+                      self.cfg.initial_pose_tolerance[0], math.degrees(self.cfg.initial_pose_tolerance[1]),
+                      ', and it is placed there while no link places it (~trust_initial_poses)'
+                      if self.cfg.trust_initial_poses else '')
+
+    def _on_clear_prior(self, _msg, robot: str) -> None:
+        with self._prior_lock:
+            if robot not in self.cfg.initial_poses:
+                rospy.loginfo('multi_map_merge: /%s/map_merge/clear_prior: %s has no prior', robot, robot)
+                return
+            self.merger.set_initial_pose(robot, None)
+            ref = self._implicit_ref_prior
+            if ref and set(self.cfg.initial_poses) <= {ref}:
+                self.merger.set_initial_pose(ref, None)
+                self._implicit_ref_prior = ''
+        rospy.loginfo('multi_map_merge: prior of %s cleared (/%s/map_merge/clear_prior): its pairs are '
+                      'estimated again without it', robot, robot)
 
     def _read_init_pose(self, robot: str) -> None:
         """m-explore's per-robot prior, ``/<robot>/map_merge/init_pose_{x,y,yaw}`` (metres,
@@ -265,14 +365,14 @@ class MergeNode:
                 time.sleep(min(0.1, end - time.monotonic() + 1e-3))
 
     def _persist(self) -> None:
-        if not self.cfg.transforms_file or self.merger.state_version == self._saved_version:
+        if not self.cfg.state_file or self.merger.state_version == self._saved_version:
             return
         version = self.merger.state_version
         try:
-            save_state(self.cfg.transforms_file, self.merger.export_state())
+            save_state(self.cfg.state_file, self.merger.export_state())
             self._saved_version = version
         except OSError as e:
-            rospy.logerr_throttle(60, 'multi_map_merge: cannot save %s: %s' % (self.cfg.transforms_file, e))
+            rospy.logerr_throttle(60, 'multi_map_merge: cannot save %s: %s' % (self.cfg.state_file, e))
 
     # -- outputs
     def _compositing_loop(self) -> None:

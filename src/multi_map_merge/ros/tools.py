@@ -213,6 +213,30 @@ def run_frame_prefix_relay(prefix: str, time_offset: float) -> None:
     rospy.spin()
 
 
+def run_scan_frame_relay(frame_id: str, src: str = 'scan', dst: str = 'scan_framed') -> None:
+    """Republish a robot's ``src`` (sensor_msgs/LaserScan, relative to the node's namespace)
+    on ``dst`` with ``header.frame_id`` set to ``frame_id``. ROBOTIS's ``ld08_driver`` (the
+    LDS-02's, noetic branch) stamps every scan ``base_scan`` whatever ``frame_id`` it is given,
+    so a robot in a team cannot have its scans in ``<robot>/base_scan`` where its
+    robot_state_publisher puts the laser; gmapping then finds no laser pose. A scan already in
+    ``frame_id`` passes unchanged."""
+    from sensor_msgs.msg import LaserScan
+    pub = rospy.Publisher(dst, LaserScan, queue_size=5)
+    seen = set()
+
+    def on_scan(msg):
+        got = msg.header.frame_id
+        if got != frame_id and got not in seen:
+            seen.add(got)
+            rospy.loginfo('scan_frame_relay: scans of %s in frame "%s" republished on %s in "%s"',
+                          rospy.resolve_name(src), got, rospy.resolve_name(dst), frame_id)
+        msg.header.frame_id = frame_id
+        pub.publish(msg)
+
+    rospy.Subscriber(src, LaserScan, on_scan, queue_size=5)
+    rospy.spin()
+
+
 # ---------------------------------------------------------------- the scripts
 def publish_maps_main(argv: Optional[List[str]] = None) -> int:
     """``publish_maps tb3_0:A.yaml tb3_1:B.yaml ... [--steps 4] [--period 2]``: publish saved
@@ -277,4 +301,18 @@ def frame_prefix_relay_main() -> int:
     if bag and clock_bag:
         offset = bag_start(clock_bag) - bag_start(bag)
     run_frame_prefix_relay(prefix, offset)
+    return 0
+
+
+def scan_frame_relay_main() -> int:
+    """``scan_frame_relay``: a robot's ``scan`` republished on ``scan_framed`` in its own laser
+    frame. Parameters: ~frame_id (default ``<namespace>/base_scan``), ~src (scan), ~dst
+    (scan_framed)."""
+    rospy.init_node('scan_frame_relay')
+    ns = rospy.get_namespace().strip('/')
+    frame_id = str(rospy.get_param('~frame_id', '%s/base_scan' % ns if ns else 'base_scan')).strip()
+    if not frame_id:
+        rospy.logerr('scan_frame_relay: ~frame_id is empty; using base_scan')
+        frame_id = 'base_scan'
+    run_scan_frame_relay(frame_id, rospy.get_param('~src', 'scan'), rospy.get_param('~dst', 'scan_framed'))
     return 0

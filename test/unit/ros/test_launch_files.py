@@ -1,7 +1,8 @@
 """Every launch file parses with roslaunch's own loader (no master) and starts what it should.
 
-gmapping and rviz are not in Debian: those two packages are tolerated when missing, nothing else
-is. Run after sourcing the workspace's devel/setup.bash (``make unit`` does): without it the
+gmapping and rviz are not in Debian, nor is robot_state_publisher by default: those packages are
+tolerated when missing, nothing else is.
+Run after sourcing the workspace's devel/setup.bash (``make unit`` does): without it the
 package cannot be found and these tests fail rather than pass vacuously.
 """
 import glob
@@ -21,8 +22,13 @@ from roslaunch.xmlloader import XmlLoader  # noqa: E402
 
 LAUNCH = os.path.join(REPO, 'launch')
 RVIZ = os.path.join(REPO, 'rviz', 'multi_map_merge.rviz')
-MAY_BE_MISSING = {'gmapping', 'rviz'}
+MAY_BE_MISSING = {'gmapping', 'rviz', 'robot_state_publisher'}
 GMAPPING = os.path.join('includes', 'gmapping_robot.launch')
+TB3_BASE = os.path.join('includes', 'tb3_robot_base.launch')
+# ROBOTIS's burger URDF (xacro), read as a file where xacro is not installed (Debian)
+BURGER = os.path.join(REPO, 'test', 'data', 'turtlebot3', 'turtlebot3_description', 'urdf',
+                      'turtlebot3_burger.urdf.xacro')
+URDF = 'urdf_file:=' + BURGER
 
 
 def load(name, *args):
@@ -135,24 +141,113 @@ def test_gmapping_robot_include():
     check_executables(cfg)
 
 
+def check_robots_rviz(cfg, robots):
+    """rviz started by robots_rviz for exactly these robots."""
+    (node,) = nodes(cfg, 'robots_rviz')
+    assert node.package == 'multi_map_merge' and node.name == 'rviz' and node.namespace == '/'
+    argv = shlex.split(node.args)
+    assert argv[:1] == ['--robots'] and argv[1].split() == list(robots), node.args
+    return argv
+
+
+def check_robot_base(cfg, robots, machine=False):
+    """Per robot, in /<robot>/: robot_state_publisher with tf_prefix <robot> (ROBOTIS's
+    turtlebot3_remote.launch multi_robot_name), the scan frame relay into gmapping."""
+    for kind in ('robot_state_publisher', 'scan_frame_relay'):
+        assert sorted(n.namespace for n in nodes(cfg, kind)) == sorted('/%s/' % r for r in robots), kind
+    for r in robots:
+        assert param(cfg, '/%s/robot_state_publisher/tf_prefix' % r) == r
+        assert param(cfg, '/%s/scan_frame_relay/frame_id' % r) == '%s/base_scan' % r
+        assert '/%s/robot_description' % r in cfg.params
+        (g,) = [n for n in nodes(cfg, 'slam_gmapping') if n.namespace == '/%s/' % r]
+        assert g.remap_args == [['scan', 'scan_framed']]
+    for n in cfg.nodes:
+        if n.namespace != '/':
+            robot = n.namespace.strip('/')
+            assert n.machine_name == (robot if machine else None), (n.name, n.machine_name)
+            if machine:
+                m = cfg.machines[robot]
+                assert m.env_loader == '/home/ubuntu/catkin_ws/devel/env.sh' and m.user == 'ubuntu'
+
+
 @pytest.mark.parametrize('count,rviz', [(1, 'false'), (2, 'true'), (3, 'false'), (4, 'true')])
 def test_multi_slam(count, rviz):
-    cfg = load('turtlebot3_multi_slam.launch', 'robot_count:=%d' % count, 'rviz:=%s' % rviz)
-    check_gmapping(cfg, ['tb3_%d' % i for i in range(count)])
+    cfg = load('turtlebot3_multi_slam.launch', URDF, 'robot_count:=%d' % count, 'rviz:=%s' % rviz)
+    robots = ['tb3_%d' % i for i in range(count)]
+    check_gmapping(cfg, robots)
+    check_robot_base(cfg, robots)
     check_map_merge(cfg)
-    check_rviz(cfg, rviz == 'true')
+    assert param(cfg, '/map_merge/robots') == ' '.join(robots)
+    if rviz == 'true':
+        check_robots_rviz(cfg, robots)
+    else:
+        assert nodes(cfg, 'robots_rviz') == [] and nodes(cfg, 'rviz') == []
     assert '/use_sim_time' not in cfg.params      # real robots: wall time
     check_executables(cfg)
 
 
 def test_multi_slam_defaults_and_names():
-    cfg = load('turtlebot3_multi_slam.launch')
+    cfg = load('turtlebot3_multi_slam.launch', URDF)
     check_gmapping(cfg, ['tb3_0', 'tb3_1', 'tb3_2', 'tb3_3'])
-    check_rviz(cfg, True)
-    cfg = load('turtlebot3_multi_slam.launch', 'robot_count:=2', 'first_tb3:=alpha',
+    check_robots_rviz(cfg, ['tb3_0', 'tb3_1', 'tb3_2', 'tb3_3'])
+    assert cfg.machines.keys() <= {''}            # slam_on:=base: everything on this machine
+    cfg = load('turtlebot3_multi_slam.launch', URDF, 'robot_count:=2', 'first_tb3:=alpha',
                'second_tb3:=beta', 'reference_robot:=beta')
     check_gmapping(cfg, ['alpha', 'beta'])
+    check_robot_base(cfg, ['alpha', 'beta'])
     check_map_merge(cfg, reference='beta')
+
+
+def test_multi_slam_on_the_robots():
+    """slam_on:=robot: each robot's nodes on a <machine> of that robot (address, user, env loader)."""
+    cfg = load('turtlebot3_multi_slam.launch', URDF, 'robot_count:=2', 'slam_on:=robot',
+               'first_tb3_address:=10.0.0.21', 'second_tb3_address:=burger2.local')
+    check_robot_base(cfg, ['tb3_0', 'tb3_1'], machine=True)
+    assert cfg.machines['tb3_0'].address == '10.0.0.21'
+    assert cfg.machines['tb3_1'].address == 'burger2.local'
+    (merger,) = nodes(cfg, 'map_merge_node')
+    assert merger.machine_name is None            # the merger stays on the base station
+    with pytest.raises(roslaunch.core.RLException):   # a typo is an error, not SLAM somewhere
+        load('turtlebot3_multi_slam.launch', URDF, 'slam_on:=robto')
+
+
+def test_robot_names_reach_the_merger_and_rviz(tmp_path):
+    """Names other than tb3_*: the merger's ~robots (read by the node as its robot list) and
+    the rviz config robots_rviz writes (one map display, one prior tool per robot, the
+    template's window layout unchanged)."""
+    import subprocess
+    import sys
+
+    from multi_map_merge.ros.params import resolve_params
+    cfg = load('turtlebot3_multi_slam.launch', URDF, 'robot_count:=3', 'first_tb3:=alpha',
+               'second_tb3:=beta', 'third_tb3:=scout_7')
+    names = ['alpha', 'beta', 'scout_7']
+    res = resolve_params({k.split('/')[-1]: p.value for k, p in cfg.params.items()
+                          if k.startswith('/map_merge/')})
+    assert res.errors == [] and res.config.robots == names
+    argv = check_robots_rviz(cfg, names)
+    out = tmp_path / 'team.rviz'
+    script = os.path.join(REPO, 'scripts', 'robots_rviz')
+    r = subprocess.run([sys.executable, script] + argv + ['--write-only', '--output', str(out),
+                       '__name:=rviz', '__log:=/tmp/x.log'], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    with open(out) as f:
+        written = yaml.safe_load(f)
+    with open(RVIZ) as f:
+        template = yaml.safe_load(f)
+    assert written['Window Geometry'] == template['Window Geometry']
+    assert written['Panels'] == template['Panels']
+    vm = written['Visualization Manager']
+    maps = [(d['Name'], d['Topic']) for d in vm['Displays'] if d['Class'] == 'rviz/Map']
+    assert maps == [('Merged map', '/map')] + [('%s map' % n, '/%s/map' % n) for n in names]
+    tools = [t['Topic'] for t in vm['Tools'] if t['Class'] == 'rviz/SetInitialPose']
+    assert tools == ['/%s/map_merge/prior' % n for n in names]
+    others = [d for d in vm['Displays'] if not d.get('Topic', '').endswith('/map')]
+    assert others == [d for d in template['Visualization Manager']['Displays']
+                      if not d.get('Topic', '').endswith('/map')]
+    bad = subprocess.run([sys.executable, script, '--robots', 'a-b', '--write-only', '--output',
+                          str(tmp_path / 'x.rviz')], capture_output=True, text=True)
+    assert bad.returncode == 2 and 'not valid ROS names: a-b' in bad.stderr
 
 
 def check_play(cfg, bag, rate='1.0', start='0'):
@@ -239,6 +334,8 @@ REQUIRED_ARGS = {
     'bag_replay.launch': ['bag:=/tmp/x.bag'],
     'replay_robot_bags.launch': ['bag_0:=/tmp/x.bag'],
     GMAPPING: ['ns:=tb3_0'],
+    'turtlebot3_multi_slam.launch': [URDF],
+    TB3_BASE: ['robot:=tb3_0', URDF],
     'team_bags_gmapping.launch': ['bag_0:=/tmp/x.bag', 'bag_1:=/tmp/y.bag'],
     os.path.join('includes', 'team_bag_robot.launch'): [
         'ns:=tb3_0', 'bag:=/tmp/x.bag', 'clock:=true', 'clock_path:=/tmp/x.bag', 'rate:=1', 'scan_topic:=/scan',
@@ -301,6 +398,9 @@ def test_rviz_config():
     for i in range(4):
         d = maps['/tb3_%d/map' % i]
         assert d['Alpha'] == 0.4 and d['Enabled'] is False
+    # one "2D Pose Estimate" per robot, publishing its prior for the merger
+    assert [t['Topic'] for t in vm['Tools'] if t['Class'] == 'rviz/SetInitialPose'] == [
+        '/tb3_%d/map_merge/prior' % i for i in range(4)]
     (tf,) = [d for d in vm['Displays'] if d['Class'] == 'rviz/TF']
     assert tf['Enabled'] is True and tf['Show Names'] is True
     (markers,) = [d for d in vm['Displays'] if d['Class'] == 'rviz/MarkerArray']

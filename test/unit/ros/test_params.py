@@ -176,10 +176,14 @@ def test_no_launch_file_sets_a_parameter_the_merger_warns_about():
     from roslaunch.config import ROSLaunchConfig
     from roslaunch.xmlloader import XmlLoader
     checked = 0
+    # xacro is not in Debian: the real-robot launch reads ROBOTIS's URDF as a file instead
+    burger = os.path.join(REPO, 'test', 'data', 'turtlebot3', 'turtlebot3_description', 'urdf',
+                          'turtlebot3_burger.urdf.xacro')
+    argv = {'turtlebot3_multi_slam.launch': ['urdf_file:=' + burger]}
     for path in sorted(glob.glob(os.path.join(REPO, 'launch', '*.launch'))):
         cfg = ROSLaunchConfig()
         try:
-            XmlLoader().load(path, cfg, argv=[], verbose=False)
+            XmlLoader().load(path, cfg, argv=argv.get(os.path.basename(path), []), verbose=False)
         except roslaunch.core.RLException:
             continue   # a launch file with a required arg: test_launch_files covers it
         for n in cfg.nodes:
@@ -234,7 +238,6 @@ def test_the_former_name_of_state_file_is_still_read():
     res = resolve_params({'transforms_file': '/tmp/links.yaml'})
     assert res.config.state_file == '/tmp/links.yaml' and not res.warnings and not res.errors
     assert res.notes == ["~transforms_file read as ~state_file (its former name): '/tmp/links.yaml'"]
-    assert res.config.transforms_file == '/tmp/links.yaml'   # (the attribute ros/node.py reads)
 
 
 def test_a_former_name_wins_over_our_name_at_its_default_as_config_map_merge_yaml_sets_it():

@@ -1,0 +1,168 @@
+"""rviz for a named team: rviz configs cannot take arguments, so ``robots_rviz`` writes one for
+the robots it is given, from ``rviz/multi_map_merge.rviz`` as the template, and starts rviz on
+it. Per robot it keeps one map display (``<robot> map`` on ``/<robot>/map``, as the template's
+first robot display) and one "2D Pose Estimate" tool publishing on
+``/<robot>/map_merge/prior`` (the node reads it as that robot's prior, see the README). Every
+other part of the template (the merged map, TF, the view, the window layout under ``Window
+Geometry``) is kept as it is.
+
+rviz 1 names a tool by its class alone (``Tool::load`` reads no ``Name``), so every robot's tool
+would say "2D Pose Estimate". Where rviz's Python bindings are installed (``python3-rviz`` on
+Debian, part of ``ros-noetic-rviz``) rviz is run through them and each of those tools is
+renamed ``<robot> prior``, on its toolbar button and in Tool Properties; else the ``rviz``
+executable is started on the config (the tools keep rviz's name, in the robots' order, each
+showing its topic in Tool Properties)."""
+from __future__ import annotations
+
+import argparse
+import copy
+import os
+import re
+import sys
+from typing import List, Optional
+
+import yaml
+
+PRIOR_TOPIC = '/%s/map_merge/prior'
+_ROBOT_MAP = re.compile(r'^/([^/]+)/map$')
+
+
+def _robot_map_display(d: dict) -> bool:
+    return d.get('Class') == 'rviz/Map' and bool(_ROBOT_MAP.match(str(d.get('Topic', ''))))
+
+
+def _prior_tool(t: dict) -> bool:
+    return t.get('Class') == 'rviz/SetInitialPose' and str(t.get('Topic', '')).endswith('/map_merge/prior')
+
+
+def robots_rviz_config(template: str, robots: List[str]) -> str:
+    """The text of an rviz config for ``robots`` made from the ``template`` config's text."""
+    names = [r.strip('/') for r in robots if r.strip('/')]
+    if not names:
+        raise ValueError('no robot names given')
+    bad = [r for r in names if not re.fullmatch(r'[A-Za-z_][A-Za-z0-9_/]*', r)]
+    if bad:
+        raise ValueError('not valid ROS names: %s' % ' '.join(bad))
+    cfg = yaml.safe_load(template)
+    vm = cfg['Visualization Manager']
+    displays = vm['Displays']
+    proto = next((d for d in displays if _robot_map_display(d)), None)
+    if proto is None:
+        raise ValueError('the template has no per-robot map display (rviz/Map on /<robot>/map)')
+    at = displays.index(proto)
+    kept = [d for d in displays if not _robot_map_display(d)]
+    mine = []
+    for r in names:
+        d = copy.deepcopy(proto)
+        d['Name'] = '%s map' % r
+        d['Topic'] = '/%s/map' % r
+        mine.append(d)
+    vm['Displays'] = kept[:at] + mine + kept[at:]
+    tools = vm['Tools']
+    proto_tool = next((t for t in tools if _prior_tool(t)), None)
+    if proto_tool is None:
+        raise ValueError('the template has no rviz/SetInitialPose tool on /<robot>/map_merge/prior')
+    at = tools.index(proto_tool)
+    others = [t for t in tools if not _prior_tool(t)]
+    priors = []
+    for r in names:
+        t = copy.deepcopy(proto_tool)
+        t['Topic'] = PRIOR_TOPIC % r
+        priors.append(t)
+    vm['Tools'] = others[:at] + priors + others[at:]
+    return yaml.safe_dump(cfg, sort_keys=False, default_flow_style=False, width=1 << 20)
+
+
+def default_template() -> str:
+    import rospkg
+    return os.path.join(rospkg.RosPack().get_path('multi_map_merge'), 'rviz', 'multi_map_merge.rviz')
+
+
+def robots_rviz_main(argv: Optional[List[str]] = None) -> int:
+    """``robots_rviz --robots "alpha beta" [--template T.rviz] [--output O.rviz] [--write-only]``:
+    write the rviz config for these robots and start rviz on it (ROS remappings such as
+    ``__name:=rviz`` from roslaunch are passed on to rviz)."""
+    if argv is None:
+        argv = sys.argv[1:]
+    ros_args = [a for a in argv if ':=' in a]
+    ap = argparse.ArgumentParser(prog='robots_rviz', description=robots_rviz_main.__doc__.split('\n')[0])
+    ap.add_argument('--robots', required=True, help='robot namespaces, separated by spaces')
+    ap.add_argument('--template', default='', help='rviz config to start from (default: the package\'s)')
+    ap.add_argument('--output', default='', help='where to write the config (default: '
+                    '$ROS_HOME/multi_map_merge_<robots>.rviz)')
+    ap.add_argument('--write-only', action='store_true', help='write the config, do not start rviz')
+    ap.add_argument('--print-tools', action='store_true', help='start rviz (needs a display and a '
+                    'master), print its toolbar\'s tool names, and exit')
+    a = ap.parse_args([x for x in argv if ':=' not in x])
+    robots = a.robots.split()
+    template = a.template or default_template()
+    try:
+        with open(template) as f:
+            text = robots_rviz_config(f.read(), robots)
+    except (OSError, ValueError, KeyError, yaml.YAMLError) as e:
+        print('robots_rviz: %s: %s' % (template, e), file=sys.stderr)
+        return 2
+    out = a.output
+    if not out:
+        import rospkg
+        home = rospkg.get_ros_home()
+        os.makedirs(home, exist_ok=True)
+        out = os.path.join(home, 'multi_map_merge_%s.rviz' % '_'.join(r.replace('/', '_') for r in robots))
+    with open(out, 'w') as f:
+        f.write(text)
+    print('robots_rviz: %s written for %s' % (out, ' '.join(robots)))
+    if a.write_only:
+        return 0
+    sys.stdout.flush()
+    try:
+        from rviz import bindings  # noqa: F401
+    except ImportError as e:
+        if a.print_tools:
+            print('robots_rviz: rviz\'s Python bindings are not installed (%s)' % e, file=sys.stderr)
+            return 2
+        print('robots_rviz: rviz\'s Python bindings are not installed (%s): starting rviz, whose '
+              'prior tools are all called "2D Pose Estimate", in the order %s' % (e, ' '.join(robots)))
+        sys.stdout.flush()
+        os.execvp('rviz', ['rviz', '-d', out] + ros_args)
+    return run_rviz(out, robots, a.print_tools)
+
+
+def run_rviz(config: str, robots: List[str], print_tools: bool = False) -> int:
+    """rviz (its VisualizationFrame, through the Python bindings) on ``config``, each robot's
+    prior tool renamed ``<robot> prior``. ``print_tools``: print the toolbar's names and quit."""
+    from python_qt_binding.QtCore import QTimer
+    from python_qt_binding.QtWidgets import QApplication, QToolBar
+
+    from rviz import bindings as rviz
+    app = QApplication(sys.argv[:1])
+    frame = rviz.VisualizationFrame()
+    frame.setSplashPath('')
+    frame.initialize(config)
+    frame.show()
+
+    def label():
+        tm = frame.getManager().getToolManager()
+        tools = [tm.getTool(i) for i in range(tm.numTools())]
+        priors = [t for t in tools if t.getClassId() == 'rviz/SetInitialPose']
+        if len(priors) != len(robots):
+            print('robots_rviz: %d prior tools for %d robots: names left as they are'
+                  % (len(priors), len(robots)), file=sys.stderr)
+            return
+        old = priors[0].getName()
+        actions = [act for bar in frame.findChildren(QToolBar) for act in bar.actions() if act.text() == old]
+        for robot, tool in zip(robots, priors):
+            tool.setName('%s prior' % robot)
+        if len(actions) == len(robots):     # the toolbar's buttons, in the tools' order
+            for robot, act in zip(robots, actions):
+                act.setText('%s prior' % robot)
+                act.setToolTip('where %s started: its map frame in the merged frame (/%s)'
+                               % (robot, PRIOR_TOPIC % robot))
+        if print_tools:
+            names = [act.text() for bar in frame.findChildren(QToolBar) for act in bar.actions() if act.text()]
+            print('robots_rviz tools: %s' % ' | '.join(names))
+            print('robots_rviz tool properties: %s' % ' | '.join(t.getName() for t in tools))
+            sys.stdout.flush()
+            app.quit()
+
+    QTimer.singleShot(500, label)
+    return app.exec_()

@@ -1,0 +1,110 @@
+#!/usr/bin/env python3
+"""rostest: ``roslaunch multi_map_merge turtlebot3_multi_slam.launch`` with real gmapping on what
+two real Turtlebot3 Burgers with LDS-02s publish.
+
+make_robot_bags writes two robots' sensors in the AWS house (``--sensors-only``: /tb3_N/scan,
+/tb3_N/odom, the TF tb3_N/odom -> tb3_N/base_footprint -> tb3_N/base_scan); the test then stamps
+every scan ``base_scan``, as ROBOTIS's ld08_driver (noetic) does whatever set_lidar_frame_id
+says. The bag plays (``--clock``) and the launch runs as the README's base station runs it
+(``robot_count:=2 rviz:=false``; ``state_publisher:=false``: robot_state_publisher is not in
+Debian, and the bag's TF already holds what it would publish, tb3_N/base_footprint ->
+tb3_N/base_scan). Asserts: the relay's scans are in tb3_N/base_scan; every robot's own gmapping
+made a map; both are merged, each within 0.25 m and 6 degrees of its true start pose (the
+gmapping limits of bag_replay_gmapping.test); every robot's base frame resolves through ``map``.
+Without the relay gmapping finds no laser pose and no map is made."""
+import os
+import subprocess
+import sys
+import tempfile
+import unittest
+
+import rosbag
+import rospkg
+import rospy
+import rostest
+import tf2_ros
+from rostest_helpers import lookup, stop_launch
+from sensor_msgs.msg import LaserScan
+
+from multi_map_merge.core.transforms import se2
+from multi_map_merge.lab.evaluate import load_truth, transform_errors
+from multi_map_merge.ros.replay import record_replay
+from multi_map_merge.ros.tools import init_node
+
+ROBOTS = ['tb3_0', 'tb3_1']
+
+
+def lds02_bag(src, dst):
+    """``src`` with every scan's frame_id "base_scan": what the LDS-02's Noetic driver sends."""
+    n = 0
+    with rosbag.Bag(src) as bi, rosbag.Bag(dst, 'w', compression='lz4') as bo:
+        for topic, msg, t in bi.read_messages():
+            if topic.endswith('/scan'):
+                msg.header.frame_id = 'base_scan'
+                n += 1
+            bo.write(topic, msg, t)
+    return n
+
+
+class TestTb3RealLaunch(unittest.TestCase):
+
+    def test_real_robot_launch_maps_and_merges(self):
+        rp = rospkg.RosPack()
+        try:
+            rp.get_path('gmapping')
+        except rospkg.ResourceNotFound:
+            self.skipTest('no gmapping: ROS has no package gmapping (Ubuntu: ros-noetic-gmapping; '
+                          'Debian: make gmapping builds it from ../shared/gmapping)')
+        pkg = rp.get_path('multi_map_merge')
+        tmp = tempfile.mkdtemp(prefix='mmm_tb3_')
+        raw = os.path.join(tmp, 'house2.bag')
+        r = subprocess.run([sys.executable, os.path.join(pkg, 'scripts', 'make_robot_bags'), '-o', raw,
+                            '--robots', '2', '--seed', '2', '--no-single', '--sensors-only'],
+                           capture_output=True, text=True)
+        self.assertEqual(r.returncode, 0, r.stderr)
+        bag = os.path.join(tmp, 'robots.bag')
+        self.assertGreater(lds02_bag(raw, bag), 100)
+        init_node('test_tb3_real_launch')
+        buf = tf2_ros.Buffer(rospy.Duration(60.0))
+        tf2_ros.TransformListener(buf)
+        framed = {}
+        for name in ROBOTS:
+            rospy.Subscriber('/%s/scan_framed' % name, LaserScan,
+                             lambda m, n=name: framed.setdefault(n, m.header.frame_id), queue_size=1)
+        launch = subprocess.Popen(['roslaunch', 'multi_map_merge', 'turtlebot3_multi_slam.launch',
+                                   'robot_count:=2', 'rviz:=false', 'state_publisher:=false', 'output:=log'],
+                                  stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+        play = subprocess.Popen(['rosbag', 'play', '--clock', '-r', '1.5', '-d', '3', bag],
+                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+        base_in_map = {}
+        try:
+            rec = record_replay(ROBOTS, period=0.5, idle=4.0, timeout=300.0)
+            # each robot's base through the merged TF: map -> tb3_N/map -> tb3_N/odom -> base
+            for name in ROBOTS:
+                base_in_map[name] = lookup(buf, 'map', '%s/base_footprint' % name, 5.0)
+        finally:
+            stop_launch(play)
+            stop_launch(launch)
+        self.assertEqual(framed, {n: '%s/base_scan' % n for n in ROBOTS})
+        self.assertIsNotNone(rec['clock'], 'no /clock: the bag did not play')
+        truth = load_truth(bag[:-4].replace('robots', 'house2') + '.truth.yaml')
+        est = {}
+        for name in ROBOTS:
+            self.assertIn(name, rec['robot_maps'], '%s: its gmapping made no map' % name)
+            got = rec['robots'][name]
+            self.assertEqual(got['diagnostics'].get('merged'), 'true', '%s: %s' % (name, got['diagnostics']))
+            self.assertIsNotNone(got['tf'], '%s: no TF map -> %s/map' % (name, name))
+            est[name] = se2(*got['tf'])
+            self.assertGreater(len(got['trajectory']), 20, name)     # its gmapping's TF, all along
+            self.assertIsNotNone(base_in_map[name], 'map -> %s/base_footprint does not resolve' % name)
+        starts = {k: se2(*v['start']) for k, v in truth['robots'].items()}
+        errors = transform_errors(est, starts, 'tb3_0')
+        print('turtlebot3_multi_slam.launch: transform errors %s'
+              % ', '.join('%s %.3f m %.2f deg' % (k, *e) for k, e in sorted(errors.items())))
+        for name, (d, a) in errors.items():
+            self.assertLess(d, 0.25, '%s: %.3f m from the truth' % (name, d))
+            self.assertLess(a, 6.0, '%s: %.2f deg from the truth' % (name, a))
+
+
+if __name__ == '__main__':
+    rostest.rosrun('multi_map_merge', 'tb3_real_launch', TestTb3RealLaunch)
