@@ -6,9 +6,11 @@ make_robot_bags writes two robots' sensors in the AWS house (``--sensors-only``:
 /tb3_N/odom, the TF tb3_N/odom -> tb3_N/base_footprint -> tb3_N/base_scan); the test then stamps
 every scan ``base_scan``, as ROBOTIS's ld08_driver (noetic) does whatever set_lidar_frame_id
 says. The bag plays (``--clock``) and the launch runs as the README's base station runs it
-(``robot_count:=2 rviz:=false``; ``state_publisher:=false``: robot_state_publisher is not in
-Debian, and the bag's TF already holds what it would publish, tb3_N/base_footprint ->
-tb3_N/base_scan). Asserts: the relay's scans are in tb3_N/base_scan; every robot's own gmapping
+(``robot_count:=2 rviz:=false``), each robot's robot_state_publisher (tf_prefix tb3_N) fed the
+Burger's URDF (``urdf_file``: ROBOTIS's xacro expanded, as Debian has no xacro); the bag's own
+tb3_N/base_footprint -> tb3_N/base_scan is taken out, so the laser's pose gmapping needs comes
+from robot_state_publisher alone. Asserts: robot_state_publisher's tb3_N/base_footprint ->
+tb3_N/base_scan is the URDF's; the relay's scans are in tb3_N/base_scan; every robot's own gmapping
 made a map; both are merged, each within 0.25 m and 6 degrees of its true start pose (the
 gmapping limits of bag_replay_gmapping.test); every robot's base frame resolves through ``map``.
 Without the relay gmapping finds no laser pose and no map is made."""
@@ -35,13 +37,18 @@ ROBOTS = ['tb3_0', 'tb3_1']
 
 
 def lds02_bag(src, dst):
-    """``src`` with every scan's frame_id "base_scan": what the LDS-02's Noetic driver sends."""
+    """``src`` with every scan's frame_id "base_scan", what the LDS-02's Noetic driver sends, and
+    without the TF to the laser (a robot's URDF gives it, through robot_state_publisher)."""
     n = 0
     with rosbag.Bag(src) as bi, rosbag.Bag(dst, 'w', compression='lz4') as bo:
         for topic, msg, t in bi.read_messages():
             if topic.endswith('/scan'):
                 msg.header.frame_id = 'base_scan'
                 n += 1
+            if topic == '/tf':
+                msg.transforms = [tr for tr in msg.transforms if not tr.child_frame_id.endswith('/base_scan')]
+                if not msg.transforms:
+                    continue
             bo.write(topic, msg, t)
     return n
 
@@ -71,21 +78,34 @@ class TestTb3RealLaunch(unittest.TestCase):
         for name in ROBOTS:
             rospy.Subscriber('/%s/scan_framed' % name, LaserScan,
                              lambda m, n=name: framed.setdefault(n, m.header.frame_id), queue_size=1)
+        try:
+            rp.get_path('robot_state_publisher')
+        except rospkg.ResourceNotFound:
+            self.fail('no robot_state_publisher (Debian: ros-robot-state-publisher, in the Makefile)')
+        urdf = os.path.join(pkg, 'test', 'data', 'turtlebot3', 'turtlebot3_description', 'urdf',
+                            'turtlebot3_burger.urdf')
         launch = subprocess.Popen(['roslaunch', 'multi_map_merge', 'turtlebot3_multi_slam.launch',
-                                   'robot_count:=2', 'rviz:=false', 'state_publisher:=false', 'output:=log'],
+                                   'robot_count:=2', 'rviz:=false', 'urdf_file:=' + urdf, 'output:=log'],
                                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
         play = subprocess.Popen(['rosbag', 'play', '--clock', '-r', '1.5', '-d', '3', bag],
                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
-        base_in_map = {}
+        base_in_map, laser = {}, {}
         try:
             rec = record_replay(ROBOTS, period=0.5, idle=4.0, timeout=300.0)
             # each robot's base through the merged TF: map -> tb3_N/map -> tb3_N/odom -> base
             for name in ROBOTS:
                 base_in_map[name] = lookup(buf, 'map', '%s/base_footprint' % name, 5.0)
+                laser[name] = buf.lookup_transform('%s/base_footprint' % name, '%s/base_scan' % name,
+                                                   rospy.Time(0), rospy.Duration(5.0)).transform.translation
         finally:
             stop_launch(play)
             stop_launch(launch)
         self.assertEqual(framed, {n: '%s/base_scan' % n for n in ROBOTS})
+        for name in ROBOTS:   # the Burger's URDF: base_footprint -> base_link 0.010 m up, the LDS 0.172 m above
+            got = laser[name]
+            self.assertAlmostEqual(got.x, -0.032, places=6, msg=name)
+            self.assertAlmostEqual(got.y, 0.0, places=6, msg=name)
+            self.assertAlmostEqual(got.z, 0.182, places=6, msg=name)
         self.assertIsNotNone(rec['clock'], 'no /clock: the bag did not play')
         truth = load_truth(bag[:-4].replace('robots', 'house2') + '.truth.yaml')
         est = {}
