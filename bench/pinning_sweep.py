@@ -108,6 +108,49 @@ def evaluate(m, truths):
     return links, robots
 
 
+def link_inputs(m, truths):
+    """[(parent levels, child levels, A, T, parent resolution, origin, true error)] of the kept
+    links of a merged case: what calibration recomputes the covariance of."""
+    out = []
+    for (a, b), e in sorted(m._edges.items()):
+        pa, ch = m._maps[a].grid, m._maps[b].grid
+        A = pose_to_image(e.T, pa.resolution, pa.origin, ch.resolution, ch.origin)
+        out.append((pa.levels(), ch.levels(), A, e.T, pa.resolution, pa.origin,
+                    err_vec(e.T, inverse(truths[a]) @ truths[b])))
+    return out
+
+
+def calibrate(inputs, temperatures, floors_cells, floors_deg):
+    """Coverage of the links' true errors by their 95% ellipses (3 dof; 2 dof position) for
+    each temperature and floor, and the median reported 2-sigma position."""
+    saved = covariance.FLOOR_CELLS, covariance.FLOOR_DEG, covariance.TEMPERATURE
+    covariance.FLOOR_CELLS = covariance.FLOOR_DEG = 0.0
+    try:
+        for t in temperatures:
+            covariance.TEMPERATURE = t
+            raw = []
+            for lv_a, lv_b, A, T, res, origin, ev in inputs:
+                p = covariance.pinning(lv_a, lv_b, A)
+                if p is not None:
+                    raw.append((p, T, res, origin, ev))
+            for fc in floors_cells:
+                for fd in floors_deg:
+                    d2, d2p, sig = [], [], []
+                    for p, T, res, origin, ev in raw:
+                        cells = p.cov + np.diag([fc ** 2, fc ** 2, math.radians(fd) ** 2])
+                        C = covariance.metric_covariance(cells, p.centre, T, res, origin)
+                        d2.append(ev @ np.linalg.solve(C, ev))
+                        d2p.append(ev[:2] @ np.linalg.solve(C[:2, :2], ev[:2]))
+                        sig.append(covariance.position_sigma(C))
+                    d2, d2p = np.array(d2), np.array(d2p)
+                    print('temperature %.3f floor %.2f cells %.3f deg: %d links, inside 95%%: %.3f (3 dof), '
+                          '%.3f (position); d2 95th percentile %.2f; median 2-sigma position %.3f m'
+                          % (t, fc, fd, len(d2), np.mean(d2 <= CHI2_3), np.mean(d2p <= CHI2_2),
+                             np.percentile(d2, 95), 2 * np.median(sig)), flush=True)
+    finally:
+        covariance.FLOOR_CELLS, covariance.FLOOR_DEG, covariance.TEMPERATURE = saved
+
+
 def summary(results):
     lines = []
     for kind in ('chain', 'flood'):
@@ -148,12 +191,17 @@ def main():
     ap.add_argument('--only', nargs='*', help='buildings')
     ap.add_argument('--temperature', type=float, help='covariance.TEMPERATURE for this run')
     ap.add_argument('--config', default='{}', help='MergeConfig fields as JSON')
+    ap.add_argument('--calibrate', action='store_true',
+                    help='recompute every link\'s covariance over a range of temperatures and floors')
+    ap.add_argument('--temperatures', type=float, nargs='*', default=[0.005, 0.01, 0.02, 0.05])
+    ap.add_argument('--floors-cells', type=float, nargs='*', default=[0.0, 0.1, 0.2, 0.3])
+    ap.add_argument('--floors-deg', type=float, nargs='*', default=[0.0, 0.02, 0.05])
     a = ap.parse_args()
     if a.temperature:
         covariance.TEMPERATURE = a.temperature
     config = json.loads(a.config)
     config.setdefault('workers', 1)
-    results = []
+    results, inputs = [], []
     t_merge = 0.0
     for name in drives.buildings(DATA):
         if a.only and name not in a.only:
@@ -173,7 +221,10 @@ def main():
                     pickle.dump(pieces, fh)
             m, dt = merge_case(pieces, config)
             t_merge += dt
-            links, robots = evaluate(m, {'r%d' % k: T for k, (_, T) in enumerate(pieces)})
+            truths = {'r%d' % k: T for k, (_, T) in enumerate(pieces)}
+            links, robots = evaluate(m, truths)
+            if a.calibrate:
+                inputs += link_inputs(m, truths)
             results.append({'building': name, 'kind': kind, 'n': n, 'seed': seed, 'links': links,
                             'robots': robots, 'seconds': dt})
             print('%-16s %s%d/%d: placed %d/%d right %d  worst %.3f m  links %d  (%.1f s)'
@@ -181,6 +232,8 @@ def main():
                      max([r['err_m'] for r in robots] or [0.0]), len(links), dt), flush=True)
     print(summary(results))
     print('estimation cycles: %.1f s in all' % t_merge)
+    if a.calibrate:
+        calibrate(inputs, a.temperatures, a.floors_cells, a.floors_deg)
     if a.output:
         with open(a.output, 'w') as fh:
             json.dump(results, fh)

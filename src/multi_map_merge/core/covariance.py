@@ -10,9 +10,9 @@ truncated at ``TRUNCATE``) to the parent's nearest wall, and the pose's likeliho
 ``exp(-(cost - best cost) / TEMPERATURE)``. The likelihood's moments over the window give the
 covariance: wide along a corridor, narrow across it, narrow in both at a corner.
 
-Two resolutions, for speed: a coarse window (``COARSE``: +-16 cells in steps of 2, +-3 degrees
-in steps of 1) with a third of the wall cells, then a fine one around its best pose (+-4 cells
-in steps of 1, +-1 degree in steps of 0.25). The covariance is the fine window's when the
+Two resolutions, for speed: a coarse window (``COARSE``: +-12 cells in steps of 2, +-2 degrees
+in steps of 1) with a third of the wall cells, then a fine one around its best pose (+-3 cells
+in steps of 1, +-0.75 degree in steps of 0.25). The covariance is the fine window's when the
 coarse likelihood lies within it, else the coarse one's (a weakly pinned direction).
 
 Frames: perturbations are searched in the parent's cells (a translation, and a turn about the
@@ -36,15 +36,16 @@ TRUNCATE = 3.0          # cells: a wall farther than this from any wall costs as
 # the likelihood's temperature (cost units: cells^2 of mean squared distance): calibrated on the
 # chain and flood-out sweeps of lab/pinning_sweep.py so that the true pose lies within the 95%
 # ellipse in at least 95% of links (docs/measurements.md)
-TEMPERATURE = 0.02
-MAX_POINTS = 1200       # wall cells scored (evenly thinned)
+TEMPERATURE = 0.05
+MAX_POINTS = 800        # wall cells scored (evenly thinned)
 MIN_POINTS = 30
 # (half-width cells, step cells, half-width degrees, step degrees, share of the points)
-COARSE = (16, 2, 3.0, 1.0, 3)
-FINE = (4, 1, 1.0, 0.25, 1)
-# floors of the reported standard deviations: the grids' quantisation (cells, degrees)
-FLOOR_CELLS = 0.5
-FLOOR_DEG = 0.1
+COARSE = (12, 2, 2.0, 1.0, 3)
+FINE = (3, 1, 0.75, 0.25, 1)
+# floors of the reported standard deviations (cells, degrees), beside the window's quantisation
+# (calibrated with TEMPERATURE)
+FLOOR_CELLS = 0.1
+FLOOR_DEG = 0.02
 
 
 @dataclass
@@ -74,27 +75,31 @@ class Pinning:
 
 class CostField:
     """Truncated squared distance to the nearest wall of a grid's levels, over its known box
-    padded by the search window (built once per parent grid)."""
+    padded by the search window (built once per parent grid). ``dist``, ``offset``: the
+    distances to the nearest wall over a part of the grid holding its known box and that
+    part's (col, row) offset, when the caller has them (:class:`refine.WallField`)."""
 
-    def __init__(self, levels: np.ndarray, pad: int = COARSE[0] + FINE[0] + 4):
-        box = known_bbox(levels)
-        self.ok = box is not None
-        if not self.ok:
-            return
-        r0, r1, c0, c1 = box
-        occ = levels[r0:r1, c0:c1] == OCCUPIED
-        self.ok = bool(occ.any())
-        if not self.ok:
-            return
-        dist = cv2.distanceTransform(np.where(occ, 0, 255).astype(np.uint8), cv2.DIST_L2, 5)
-        cost = np.minimum(dist, TRUNCATE) ** 2
+    def __init__(self, levels: np.ndarray, dist: Optional[np.ndarray] = None,
+                 offset: Tuple[int, int] = (0, 0), pad: int = COARSE[0] + FINE[0] + 4):
+        self.ok = dist is not None
+        if dist is None:
+            box = known_bbox(levels)
+            self.ok = box is not None
+            if not self.ok:
+                return
+            r0, r1, c0, c1 = box
+            occ = levels[r0:r1, c0:c1] == OCCUPIED
+            self.ok = bool(occ.any())
+            if not self.ok:
+                return
+            dist = cv2.distanceTransform(np.where(occ, 0, 255).astype(np.uint8), cv2.DIST_L2, 5)
+            offset = (c0, r0)
+        cost = np.minimum(dist, TRUNCATE).astype(np.float32) ** 2
         big = np.float32(TRUNCATE ** 2)
-        self.cost = cv2.copyMakeBorder(cost.astype(np.float32), pad, pad, pad, pad,
-                                       cv2.BORDER_CONSTANT, value=float(big))
+        self.cost = cv2.copyMakeBorder(cost, pad, pad, pad, pad, cv2.BORDER_CONSTANT, value=float(big))
         self.flat = self.cost.ravel()
-        self.offset = np.array([c0 - pad, r0 - pad], np.float64)   # cell (0, 0) of the table
+        self.offset = np.array([offset[0] - pad, offset[1] - pad], np.float64)   # cell (0, 0) of the table
         self.known = levels > 0
-        self.pad = pad
         self.big = big
 
     def flat_index(self, pts: np.ndarray, margin: int) -> Tuple[np.ndarray, np.ndarray]:

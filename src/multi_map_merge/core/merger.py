@@ -22,7 +22,7 @@ from typing import Dict, List, Optional, Tuple
 
 import numpy as np
 
-from . import links, placement, verify
+from . import covariance, links, placement, verify
 from .composite import Lattice, Patch, composite, lattice_for, warp_patch
 from .config import MergeConfig
 from .grid import DEFAULT_FREE_THRESH, DEFAULT_OCC_THRESH, Grid, rescale
@@ -66,6 +66,9 @@ class RobotStatus:
     last_attempt_with: str = ''
     error: str = ''
     linked_to: Tuple[str, ...] = ()   # robots it has verified links with
+    # its verified links: (parent, child, 3x3 covariance of (x, y, yaw) of the child's map
+    # frame in the parent's, x, y in metres of the parent's frame, yaw in radians; None if unknown)
+    link_covariances: Tuple[Tuple[str, str, Optional[np.ndarray]], ...] = ()
 
 
 class MapMerger:
@@ -247,7 +250,9 @@ class MapMerger:
                         last, other = e, (b if a == n else a)
                 pl = self._placements.get(n)
                 links = tuple(sorted({b if a == n else a for (a, b) in self._edges if n in (a, b)}))
-                out[n] = RobotStatus(pl is not None, n == ref, pl, last, other, self._errors.get(n, ''), links)
+                covs = tuple((a, b, e.cov) for (a, b), e in sorted(self._edges.items()) if n in (a, b))
+                out[n] = RobotStatus(pl is not None, n == ref, pl, last, other, self._errors.get(n, ''), links,
+                                     covs)
             return out
 
     def export_state(self) -> Dict:
@@ -255,7 +260,7 @@ class MapMerger:
         with self._lock:
             edges = [dict(zip(('x', 'y', 'yaw'), xyyaw(e.T)), parent=e.parent, child=e.child,
                           inlier_ratio=float(e.inlier_ratio), agreement=float(e.agreement),
-                          inliers=int(e.inliers), matches=int(e.matches))
+                          inliers=int(e.inliers), matches=int(e.matches), **_cov_fields(e.cov))
                      for e in self._edges.values()]
             placements = {n: dict(zip(('x', 'y', 'yaw'), xyyaw(p.T)), inlier_ratio=float(p.inlier_ratio),
                                   agreement=float(p.agreement), via=p.via, chain=list(p.path))
@@ -275,6 +280,8 @@ class MapMerger:
                     e = Edge(str(d['parent']), str(d['child']), se2(float(d['x']), float(d['y']), float(d['yaw'])),
                              float(ratio), float(d['agreement']), int(d['inliers']),
                              int(d.get('matches', 0)), time.time())
+                    if d.get('cov') is not None:
+                        e.cov = np.array([float(v) for v in d['cov']]).reshape(3, 3)
                 except (KeyError, TypeError, ValueError):
                     continue
                 if all(math.isfinite(v) for v in e.T.ravel()):
@@ -345,7 +352,7 @@ class MapMerger:
             if self._edges.get(key) is not old:
                 return               # forgotten (reset, map restart) meanwhile
             self._edges[key] = Edge(pa.name, ch.name, T, inlier_ratio, r.agreement, inliers, r.matches,
-                                    time.time(), r.overlap)
+                                    time.time(), r.overlap, r.cov)
             self.state_version += 1
 
     def estimate_grids(self, pa: RobotMap, ch: RobotMap, seed: int = 0) -> PairEstimate:
@@ -399,6 +406,16 @@ class MapMerger:
                                                lattice, c.max_cells)
         self._patches[m.name] = (key, p)
         return p
+
+
+def _cov_fields(cov: Optional[np.ndarray]) -> Dict:
+    """A covariance as plain data: ``cov`` (9 floats, row-major, of x, y, yaw: metres^2,
+    radians^2) and ``sigma_position`` (metres, the worst direction's standard deviation); nothing
+    when unknown."""
+    if cov is None:
+        return {}
+    return {'cov': [float(v) for v in np.asarray(cov).ravel()],
+            'sigma_position': covariance.position_sigma(cov)}
 
 
 def _restarted(old: Grid, new: Grid) -> bool:

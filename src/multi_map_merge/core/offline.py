@@ -23,7 +23,8 @@ from .transforms import xyyaw
 
 
 def transforms_report(merger: MapMerger, reference: str, names: List[str]) -> Dict:
-    """The ``--transforms`` document: pose of every map frame in the merged (reference) frame."""
+    """The ``--transforms`` document: pose of every map frame in the merged (reference) frame,
+    and every verified link between two maps with how well the grids pin it."""
     placements = merger.placements()
     status = merger.status()
     maps: Dict[str, Dict] = {}
@@ -40,7 +41,15 @@ def transforms_report(merger: MapMerger, reference: str, names: List[str]) -> Di
         maps[n] = {'merged': True, 'x': round(x, 6), 'y': round(y, 6), 'yaw': round(yaw, 6),
                    'inlier_ratio': round(float(pl.inlier_ratio), 4), 'inliers': int(pl.inliers),
                    'agreement': round(float(pl.agreement), 4), 'via': pl.via}
-    return {'reference': reference, 'maps': maps}
+    links = []
+    for e in sorted(merger.export_state()['edges'], key=lambda e: (e['parent'], e['child'])):
+        d = {'parent': e['parent'], 'child': e['child'], 'x': round(e['x'], 6), 'y': round(e['y'], 6),
+             'yaw': round(e['yaw'], 6)}
+        if 'cov' in e:
+            d['sigma_position'] = round(e['sigma_position'], 6)
+            d['cov'] = [float('%.6g' % v) for v in e['cov']]
+        links.append(d)
+    return {'reference': reference, 'maps': maps, 'links': links}
 
 
 def main(argv: Optional[List[str]] = None) -> int:
@@ -98,5 +107,10 @@ def main(argv: Optional[List[str]] = None) -> int:
                                                           r['agreement'], r['via']))
         else:
             print('  %-30s NOT merged: %s' % (n, r['reason']))
+    for lk in report['links']:
+        sigma = 'covariance unknown'
+        if 'sigma_position' in lk:
+            sigma = '2-sigma position %.3f m' % (2 * lk['sigma_position'])
+        print('  link %s -> %s: %s' % (lk['parent'], lk['child'], sigma))
     print('merged map: %s (%dx%d cells, %.3f m)' % (a.output, merged.width, merged.height, merged.resolution))
     return 0

@@ -13,7 +13,7 @@ from typing import Dict, Optional, Tuple
 import cv2
 import numpy as np
 
-from . import matching, verify
+from . import covariance, matching, verify
 from .config import MergeConfig
 from .features import FeatureExtractor, Features, coarsening
 from .grid import known_bbox
@@ -40,6 +40,9 @@ class PairEstimate:
         runner_up: the best clearly different placement that also passed every gate, as
             (agreement, metres, degrees from this one); None when there was none.
         stamp: seconds (time.time()) when the merger received it; 0 until then.
+        cov: of an accepted estimate, 3x3 covariance of (x, y, yaw) of the link's pose (the
+            child's map frame in the parent's): metres^2 / radians^2, x, y in the parent's
+            frame (:mod:`covariance`); None when not computed.
     """
 
     A: Optional[np.ndarray]
@@ -52,6 +55,7 @@ class PairEstimate:
     reason: str = ''
     runner_up: Optional[Tuple[float, float, float]] = None
     stamp: float = 0.0
+    cov: Optional[np.ndarray] = None
 
 
 @dataclass
@@ -207,9 +211,32 @@ def estimate_pair(config: MergeConfig, pa: PairInput, ch: PairInput, seed: int =
     hypothesis is returned, or the best rejected one with its reason (also when a clearly
     different hypothesis verifies nearly as well: ambiguous, see :func:`_check_ambiguity`)."""
     r = _estimate_crops(config, pa, ch, seed)
+    if r.accepted:
+        r.cov = _pinned(pa, ch, r.A)
     if r.A is not None:
         r.A = _grid_cells(r.A, pa, ch)
     return r
+
+
+def _cost_field(p: PairInput) -> covariance.CostField:
+    """The wall cost of a parent for :func:`covariance.pinning`, from the distances ICP uses."""
+    f = _field(p)
+    if not f.ok:
+        return covariance.CostField(p.levels)
+    return covariance.CostField(p.levels, f.dist_flat[:-1].reshape(f.shape), (int(f.offset[0]), int(f.offset[1])))
+
+
+def _pinned(pa: PairInput, ch: PairInput, A: np.ndarray) -> Optional[np.ndarray]:
+    """The covariance of an accepted link ``A`` (between the crops' cells) in the parent's
+    metric frame (:func:`covariance.pinning`), None when its walls say too little."""
+    field = _derived('costfield', pa, _cost_field)
+    p = covariance.pinning(pa.levels, ch.levels, A, field, _wall_points(ch))
+    if p is None:
+        return None
+    Ag = _grid_cells(A, pa, ch)
+    T = image_to_pose(Ag, pa.resolution, pa.origin, ch.resolution, ch.origin)
+    centre = p.centre + np.array(pa.offset, np.float64)
+    return covariance.metric_covariance(p.cov, centre, T, pa.resolution, pa.origin)
 
 
 def _estimate_crops(config: MergeConfig, pa: PairInput, ch: PairInput, seed: int) -> PairEstimate:

@@ -93,3 +93,28 @@ def test_metric_covariance_units_and_lever():
     assert m[2, 2] == pytest.approx(s ** 2) and m[0, 2] == pytest.approx(-10.0 * s ** 2)
     assert cv.position_sigma(m) == pytest.approx(10.0 * s)
     assert xyyaw(T)[2] == pytest.approx(0.3)
+
+
+def test_kept_links_carry_their_covariance(intel):
+    """A merger's kept links carry the covariance computed on the grids, in status and in the
+    exported state, and a restored link takes it back."""
+    from multi_map_merge.core.config import MergeConfig
+    from multi_map_merge.core.merger import MapMerger
+    rs = split_rects(intel, 2, 0.3)
+    ps = [cut_piece(intel, r, p) for r, p in zip(rs, [(1.0, 2.0, 0.4), (-2.0, 0.5, -1.2)])]
+    m = MapMerger(MergeConfig(workers=1))
+    m.update_map('a', ps[0][0])
+    m.update_map('b', ps[1][0])
+    m.estimate()
+    st = m.status()
+    assert st['b'].link_covariances and st['b'].link_covariances == st['a'].link_covariances
+    a, b, C = st['b'].link_covariances[0]
+    assert (a, b) == ('a', 'b') and C.shape == (3, 3) and np.all(np.linalg.eigvalsh(C) > 0)
+    # the link is placed within 0.1 m: its 2-sigma is of that order, not metres nor microns
+    assert 0.01 < 2 * cv.position_sigma(C) < 0.3
+    e = m.export_state()['edges'][0]
+    assert np.allclose(np.array(e['cov']).reshape(3, 3), C)
+    assert e['sigma_position'] == pytest.approx(cv.position_sigma(C))
+    m2 = MapMerger(MergeConfig(workers=1))
+    assert m2.restore_state(m.export_state()) == 1
+    assert np.allclose(m2._restored[('a', 'b')].cov, C)

@@ -45,7 +45,8 @@ MERGED_KEYS = {'merged', 'x', 'y', 'yaw', 'inlier_ratio', 'inliers', 'agreement'
 def check_report(report, ps, stems):
     """T.yaml's exact shape (README: reference, maps: {stem: {merged, x, y, yaw, inlier_ratio,
     inliers, agreement, via}}) and every pose against the truth."""
-    assert set(report) == {'reference', 'maps'} and report['reference'] == stems[0]
+    assert set(report) == {'reference', 'maps', 'links'} and report['reference'] == stems[0]
+    check_links(report['links'], ps, stems)
     assert set(report['maps']) == set(stems[1:])
     for i, s in enumerate(stems[1:], 1):
         r = report['maps'][s]
@@ -56,6 +57,21 @@ def check_report(report, ps, stems):
         assert 0 < r['inlier_ratio'] <= 1 and r['inliers'] >= 10 and 0.8 <= r['agreement'] <= 1
         d, a = pose_error(se2(r['x'], r['y'], r['yaw']), truth(ps[0][1], ps[i][1]))
         assert d <= 0.10 and a <= 1.0, '%s off by %.3f m %.2f deg' % (s, d, a)
+
+
+def check_links(links, ps, stems):
+    """Every verified link: its pose against the truth, and a covariance (row-major 3x3,
+    symmetric, positive definite) whose position sigma is its worst direction's."""
+    assert links
+    for lk in links:
+        assert set(lk) == {'parent', 'child', 'x', 'y', 'yaw', 'cov', 'sigma_position'}, sorted(lk)
+        i, j = stems.index(lk['parent']), stems.index(lk['child'])
+        d, a = pose_error(se2(lk['x'], lk['y'], lk['yaw']), truth(ps[i][1], ps[j][1]))
+        assert d <= 0.10 and a <= 1.0
+        C = np.array(lk['cov']).reshape(3, 3)
+        assert np.allclose(C, C.T, rtol=1e-4, atol=1e-12) and np.all(np.linalg.eigvalsh(C) > 0)
+        assert lk['sigma_position'] == pytest.approx(np.sqrt(np.linalg.eigvalsh(C[:2, :2])[-1]), rel=1e-3)
+        assert 0.005 < lk['sigma_position'] < 0.5
 
 
 def write_pieces(tmp_path, ps):
