@@ -263,7 +263,8 @@ class MapMerger:
                           inliers=int(e.inliers), matches=int(e.matches), **_cov_fields(e.cov))
                      for e in self._edges.values()]
             placements = {n: dict(zip(('x', 'y', 'yaw'), xyyaw(p.T)), inlier_ratio=float(p.inlier_ratio),
-                                  agreement=float(p.agreement), via=p.via, chain=list(p.path))
+                                  agreement=float(p.agreement), via=p.via, chain=list(p.path),
+                                  weak=bool(p.weak), **_cov_fields(p.cov))
                           for n, p in self._placements.items()}
             return {'reference': self._reference_locked(), 'edges': edges, 'placements': placements}
 
@@ -377,7 +378,7 @@ class MapMerger:
             if same:
                 graph_key = key              # nothing changed: the kept placements stand
             else:
-                poses = placement.graph_poses(best, graph, ref)
+                poses = placement.graph_poses(best, graph, ref, placement.link_covs(edges, graph))
                 if poses is not None:
                     graph_key = key
                     for n in best:
@@ -389,6 +390,8 @@ class MapMerger:
         placement.add_priors(c, best, maps, ref)
         # the kept placement stays unless the new one is better
         new, events = placement.hysteresis(c, best, old, edges, ref, regraphed)
+        # how well each is pinned: its links' covariances, along its chain or by the graph
+        placement.pin(c, new, edges, ref, graph_key is not None)
         with self._lock:
             if set(new) != set(self._placements) or any(new[n] is not self._placements.get(n) for n in new):
                 self.state_version += 1

@@ -14,8 +14,10 @@ import os
 import sys
 from typing import Dict, List, Optional
 
+import numpy as np
 import yaml
 
+from . import covariance
 from .config import MergeConfig
 from .mapio import MapFileError, load_map, save_map
 from .merger import MapMerger
@@ -40,7 +42,10 @@ def transforms_report(merger: MapMerger, reference: str, names: List[str]) -> Di
         x, y, yaw = xyyaw(pl.T)
         maps[n] = {'merged': True, 'x': round(x, 6), 'y': round(y, 6), 'yaw': round(yaw, 6),
                    'inlier_ratio': round(float(pl.inlier_ratio), 4), 'inliers': int(pl.inliers),
-                   'agreement': round(float(pl.agreement), 4), 'via': pl.via}
+                   'agreement': round(float(pl.agreement), 4), 'via': pl.via, 'weak': bool(pl.weak)}
+        if pl.cov is not None:
+            maps[n]['sigma_position'] = round(covariance.position_sigma(pl.cov), 6)
+            maps[n]['cov'] = [float('%.6g' % v) for v in np.asarray(pl.cov).ravel()]
     links = []
     for e in sorted(merger.export_state()['edges'], key=lambda e: (e['parent'], e['child'])):
         d = {'parent': e['parent'], 'child': e['child'], 'x': round(e['x'], 6), 'y': round(e['y'], 6),
@@ -105,6 +110,9 @@ def main(argv: Optional[List[str]] = None) -> int:
                   'inliers %d  agreement %.3f  via %s' % (n, r['x'], r['y'], math.degrees(r['yaw']),
                                                           r['inlier_ratio'], r['inliers'],
                                                           r['agreement'], r['via']))
+            if 'sigma_position' in r:
+                print('  %-30s          2-sigma position %.3f m%s' % ('', 2 * r['sigma_position'],
+                                                                     ' WEAKLY PINNED' if r['weak'] else ''))
         else:
             print('  %-30s NOT merged: %s' % (n, r['reason']))
     for lk in report['links']:

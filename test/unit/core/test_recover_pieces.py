@@ -39,7 +39,8 @@ def test_core_api_recovers_every_pose(world, n, seed):
         assert np.linalg.det(pl['p%d' % i].T[:2, :2]) == pytest.approx(1.0)
 
 
-MERGED_KEYS = {'merged', 'x', 'y', 'yaw', 'inlier_ratio', 'inliers', 'agreement', 'via'}
+MERGED_KEYS = {'merged', 'x', 'y', 'yaw', 'inlier_ratio', 'inliers', 'agreement', 'via', 'weak', 'sigma_position',
+               'cov'}
 
 
 def check_report(report, ps, stems):
@@ -57,6 +58,10 @@ def check_report(report, ps, stems):
         assert 0 < r['inlier_ratio'] <= 1 and r['inliers'] >= 10 and 0.8 <= r['agreement'] <= 1
         d, a = pose_error(se2(r['x'], r['y'], r['yaw']), truth(ps[0][1], ps[i][1]))
         assert d <= 0.10 and a <= 1.0, '%s off by %.3f m %.2f deg' % (s, d, a)
+        # pieces of a third of a building, rooms and corners: pinned well in every direction
+        assert 0.005 < r['sigma_position'] < 0.05 and r['weak'] is False
+        C = np.array(r['cov']).reshape(3, 3)
+        assert r['sigma_position'] == pytest.approx(np.sqrt(np.linalg.eigvalsh(C[:2, :2])[-1]), rel=1e-3)
 
 
 def check_links(links, ps, stems):
