@@ -21,20 +21,20 @@ from multi_map_merge.core.merger import MapMerger  # noqa: E402
 
 
 def main(names):
-    real = pair._pinned
+    real = pair._pin
     for name in names or ['house4', 'intel4', 'intel8', 'edmonton4']:
         grids = [g for g, _ in profile_core.CONFIGS[name]()]
         t = {True: [], False: []}
         for _ in range(5):
             for on in (False, True):
-                pair._pinned = real if on else (lambda *a: None)
+                pair._pin = real if on else (lambda *a: None)
                 m = MapMerger(MergeConfig(workers=1))
                 for k, g in enumerate(grids):
                     m.update_map('r%02d' % k, g)
                 t0 = time.process_time()
                 m.estimate()
                 t[on].append(time.process_time() - t0)
-        pair._pinned = real
+        pair._pin = real
         b, a = statistics.median(t[False]), statistics.median(t[True])
         print('%-10s CPU without %.3f s  with %.3f s  %+.1f%% (median of 5, in-process A/B)'
               % (name, b, a, 100 * (a / b - 1)), flush=True)

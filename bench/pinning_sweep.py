@@ -190,6 +190,7 @@ def main():
     ap.add_argument('--quick', action='store_true', help='3 cases per building')
     ap.add_argument('--only', nargs='*', help='buildings')
     ap.add_argument('--temperature', type=float, help='covariance.TEMPERATURE for this run')
+    ap.add_argument('--better-cost', type=float, help='covariance.BETTER_COST for this run')
     ap.add_argument('--config', default='{}', help='MergeConfig fields as JSON')
     ap.add_argument('--calibrate', action='store_true',
                     help='recompute every link\'s covariance over a range of temperatures and floors')
@@ -199,6 +200,8 @@ def main():
     a = ap.parse_args()
     if a.temperature:
         covariance.TEMPERATURE = a.temperature
+    if a.better_cost is not None:
+        covariance.BETTER_COST = a.better_cost
     config = json.loads(a.config)
     config.setdefault('workers', 1)
     results, inputs = [], []

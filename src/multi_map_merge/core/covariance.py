@@ -42,6 +42,8 @@ MIN_POINTS = 30
 # (half-width cells, step cells, half-width degrees, step degrees, share of the points)
 COARSE = (12, 2, 2.0, 1.0, 3)
 FINE = (3, 1, 0.75, 0.25, 1)
+# mean cost (cells^2) by which a pose found by the search must beat the given one to replace it
+BETTER_COST = 0.02
 # floors of the reported standard deviations (cells, degrees), beside the window's quantisation
 # (calibrated with TEMPERATURE)
 FLOOR_CELLS = 0.1

@@ -212,7 +212,7 @@ def estimate_pair(config: MergeConfig, pa: PairInput, ch: PairInput, seed: int =
     different hypothesis verifies nearly as well: ambiguous, see :func:`_check_ambiguity`)."""
     r = _estimate_crops(config, pa, ch, seed)
     if r.accepted:
-        r.cov = _pinned(pa, ch, r.A)
+        _pin(config, pa, ch, r)
     if r.A is not None:
         r.A = _grid_cells(r.A, pa, ch)
     return r
@@ -226,17 +226,28 @@ def _cost_field(p: PairInput) -> covariance.CostField:
     return covariance.CostField(p.levels, f.dist_flat[:-1].reshape(f.shape), (int(f.offset[0]), int(f.offset[1])))
 
 
-def _pinned(pa: PairInput, ch: PairInput, A: np.ndarray) -> Optional[np.ndarray]:
-    """The covariance of an accepted link ``A`` (between the crops' cells) in the parent's
-    metric frame (:func:`covariance.pinning`), None when its walls say too little."""
+def _pin(config: MergeConfig, pa: PairInput, ch: PairInput, r: PairEstimate) -> None:
+    """An accepted estimate's covariance (``r.cov``, in the parent's metric frame; None when
+    its walls say too little), from :func:`covariance.pinning` around ``r.A`` (between the
+    crops' cells). Where the search finds a pose whose walls meet clearly better than ICP's
+    (ICP stopped in a local minimum: along a corridor, a wall's end a few cells off), that
+    pose, polished by ICP, replaces ``r.A`` if it also verifies at least as well."""
     field = _derived('costfield', pa, _cost_field)
-    p = covariance.pinning(pa.levels, ch.levels, A, field, _wall_points(ch))
+    pts = _wall_points(ch)
+    p = covariance.pinning(pa.levels, ch.levels, r.A, field, pts)
     if p is None:
-        return None
-    Ag = _grid_cells(A, pa, ch)
-    T = image_to_pose(Ag, pa.resolution, pa.origin, ch.resolution, ch.origin)
+        return
+    if p.cost_best < p.cost - covariance.BETTER_COST:
+        A2 = refined(config, pa, ch, p.A) if config.refine else p.A
+        p2 = covariance.pinning(pa.levels, ch.levels, A2, field, pts)
+        tol = config.agreement_tolerance
+        ag, ov = verify.agreement(pa.levels, ch.levels, A2, tol, (_known(pa)[0], _known(ch)[0]), _walls(pa, tol))
+        if (p2 is not None and p2.cost < p.cost - covariance.BETTER_COST and ag >= r.agreement
+                and ov >= config.min_overlap_cells):
+            r.A, r.agreement, r.overlap, p = A2, ag, ov, p2
+    T = image_to_pose(_grid_cells(r.A, pa, ch), pa.resolution, pa.origin, ch.resolution, ch.origin)
     centre = p.centre + np.array(pa.offset, np.float64)
-    return covariance.metric_covariance(p.cov, centre, T, pa.resolution, pa.origin)
+    r.cov = covariance.metric_covariance(p.cov, centre, T, pa.resolution, pa.origin)
 
 
 def _estimate_crops(config: MergeConfig, pa: PairInput, ch: PairInput, seed: int) -> PairEstimate:

@@ -118,3 +118,27 @@ def test_kept_links_carry_their_covariance(intel):
     m2 = MapMerger(MergeConfig(workers=1))
     assert m2.restore_state(m.export_state()) == 1
     assert np.allclose(m2._restored[('a', 'b')].cov, C)
+
+
+def _input(name, levels):
+    from multi_map_merge.core.pair import PairInput
+    return PairInput(name, 1, levels, 0.05, (0.0, 0.0, 0.0), None, owner='test_covariance')
+
+
+@pytest.mark.parametrize('dx', [0.0, -4.0])
+def test_a_better_pose_found_by_the_search_is_taken(dx):
+    """An accepted link 4 cells short along a corridor whose end both maps saw (and off by a
+    fraction of a cell across) is moved to where the walls meet; a right link stays as it is."""
+    from multi_map_merge.core import pair, verify
+    from multi_map_merge.core.config import MergeConfig
+    c = MergeConfig()
+    pa = _input('pa%d' % dx, corridor(20, 380, end_wall=True))
+    ch = _input('ch%d' % dx, corridor(100, 380, end_wall=True))
+    A = se2(dx, 0.0, 0.0)
+    ag, ov = verify.agreement(pa.levels, ch.levels, A, c.agreement_tolerance)
+    r = pair.PairEstimate(A.copy(), agreement=ag, overlap=ov, accepted=True)
+    pair._pin(c, pa, ch, r)
+    assert np.allclose(r.A, np.eye(3), atol=1e-6), r.A
+    assert r.agreement >= ag and r.cov is not None
+    # the taken pose's covariance is about the pose taken: the 4 cells are not in it
+    assert 2 * cv.position_sigma(r.cov) < 0.1
