@@ -191,6 +191,11 @@ def main():
     ap.add_argument('--only', nargs='*', help='buildings')
     ap.add_argument('--temperature', type=float, help='covariance.TEMPERATURE for this run')
     ap.add_argument('--better-cost', type=float, help='covariance.BETTER_COST for this run')
+    ap.add_argument('--baseline', action='store_true',
+                    help='the merger before issue 22 steps 3-4: pose graph by inlier counts, ICP\'s pose kept '
+                         '(links still get a covariance, which changes no estimate: pair digest identical)')
+    ap.add_argument('--max-range', type=float, default=drives.MAX_RANGE, help='metres a robot\'s map reaches')
+    ap.add_argument('--overlap', type=float, default=0.15, help='chain: share of a stretch added at both ends')
     ap.add_argument('--config', default='{}', help='MergeConfig fields as JSON')
     ap.add_argument('--calibrate', action='store_true',
                     help='recompute every link\'s covariance over a range of temperatures and floors')
@@ -202,6 +207,13 @@ def main():
         covariance.TEMPERATURE = a.temperature
     if a.better_cost is not None:
         covariance.BETTER_COST = a.better_cost
+    if a.baseline:
+        from multi_map_merge.core import placement
+        covariance.BETTER_COST = float('inf')
+        graph_poses = placement.graph_poses
+        placement.graph_poses = lambda best, links, ref, covs=None: graph_poses(best, links, ref)
+    drives.MAX_RANGE = a.max_range
+    tag = '' if (a.max_range, a.overlap) == (8.0, 0.15) else '_r%g_o%g' % (a.max_range, a.overlap)
     config = json.loads(a.config)
     config.setdefault('workers', 1)
     results, inputs = [], []
@@ -211,15 +223,17 @@ def main():
             continue
         world = poses = None
         for kind, n, seed in case_list(a.quick):
-            f = os.path.join(a.cases, '%s_%s%d_%d.pkl' % (name, kind, n, seed))
+            f = os.path.join(a.cases, '%s_%s%d_%d%s.pkl' % (name, kind, n, seed, tag))
             if os.path.exists(f):
                 with open(f, 'rb') as fh:
                     pieces = pickle.load(fh)
             else:
                 if world is None:
                     world, poses, ranges, angles = drives.load(DATA, name, a.cases)
-                cut = drives.chain if kind == 'chain' else drives.flood
-                pieces = cut(world, poses, ranges, angles, n, seed)
+                if kind == 'chain':
+                    pieces = drives.chain(world, poses, ranges, angles, n, seed, a.overlap)
+                else:
+                    pieces = drives.flood(world, poses, ranges, angles, n, seed)
                 with open(f, 'wb') as fh:
                     pickle.dump(pieces, fh)
             m, dt = merge_case(pieces, config)

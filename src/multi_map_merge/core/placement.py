@@ -1,16 +1,19 @@
 """Where every robot's map frame sits in the merged frame, from the verified links.
 
-Four steps, in this order (:meth:`merger.MapMerger._place` runs them):
+Five steps, in this order (:meth:`merger.MapMerger._place` runs them):
 
 1. :func:`widest_paths`: each robot chained to the reference through the path whose weakest
    link has the highest inlier ratio (a robot that misses the reference chains through another).
 2. :func:`graph_poses`: where the links form cycles, an SE(2) pose graph places every robot by
-   all verified links at once (a chain adds up its links' errors, the graph averages them),
-   used only if every link agrees with its solution within GRAPH_GATE.
+   all verified links at once (a chain adds up its links' errors, the graph averages them,
+   each link weighed by the information of its covariance), used only if every link agrees
+   with its solution within GRAPH_GATE.
 3. :func:`add_priors`: robots with no chain, placed at their configured initial pose when
    those are trusted.
 4. :func:`hysteresis`: per robot the kept placement stays unless the new one is more reliable
    by ``replace_margin``, its chain broke, or the pose graph moved everyone.
+5. :func:`pin`: each placement's covariance (its links' propagated along its chain, or
+   combined by the pose graph) and whether it is weakly pinned (``max_position_sigma``).
 """
 from __future__ import annotations
 

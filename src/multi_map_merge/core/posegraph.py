@@ -5,7 +5,9 @@ it); with more links than robots (every pair is matched) the placements can be a
 every cycle instead. Each link ``a -> b`` measures ``Z_ab`` (pose of b's frame in a's frame);
 we find the poses ``T_k`` (of each frame in the merged frame, the reference fixed at the
 identity) that minimise ``sum_w || log(Z_ab^-1 T_a^-1 T_b) ||^2`` (x, y in metres scaled by
-``sigma_xy``, yaw in radians by ``sigma_yaw``) by Gauss-Newton with analytic Jacobians (32 robots, 496 links: a few ms).
+``sigma_xy``, yaw in radians by ``sigma_yaw``; or, for a link with a covariance, whitened by
+its information) by Gauss-Newton with analytic Jacobians (32 robots, 496 links: a few ms).
+:func:`covariances` gives the placements' covariance at the solution.
 """
 from __future__ import annotations
 
