@@ -63,7 +63,7 @@ class Pinning:
         centre: (2,) the child's wall centre in the parent's cells (the turns' pivot).
         cost: mean truncated squared distance at the given pose (cells^2).
         cost_best: the same at ``A``.
-        points: wall cells scored.
+        points: the child's wall cells scored ((N, 2) col, row in the child's cells).
     """
 
     A: np.ndarray
@@ -72,7 +72,7 @@ class Pinning:
     centre: np.ndarray
     cost: float
     cost_best: float
-    points: int
+    points: np.ndarray
 
 
 class CostField:
@@ -175,16 +175,7 @@ def pinning(parent_levels: np.ndarray, child_levels: np.ndarray, A: np.ndarray,
     if not field.ok:
         return None
     pts = child_points if child_points is not None else _wall_points(child_levels, MAX_POINTS)
-    if pts.shape[0] > MAX_POINTS:
-        pts = pts[:: int(math.ceil(pts.shape[0] / float(MAX_POINTS)))]
-    mapped = pts @ A[:2, :2].T + A[:2, 2]
-    # only walls that land on what the parent has seen say anything about the pose
-    ci = np.rint(mapped).astype(np.int64)
-    h, w = field.known.shape
-    inside = (ci[:, 0] >= 0) & (ci[:, 0] < w) & (ci[:, 1] >= 0) & (ci[:, 1] < h)
-    seen = np.zeros(len(mapped), bool)
-    seen[inside] = field.known[ci[inside, 1], ci[inside, 0]]
-    mapped = mapped[seen]
+    pts, mapped = _seen(field, pts, A)
     if mapped.shape[0] < MIN_POINTS:
         return None
     centre = mapped.mean(axis=0)
@@ -214,7 +205,32 @@ def pinning(parent_levels: np.ndarray, child_levels: np.ndarray, A: np.ndarray,
                     + [math.radians(q_deg) ** 2 / 12.0 + math.radians(FLOOR_DEG) ** 2])
     D = se2(best[0], best[1], 0.0) @ se2(centre[0], centre[1], best[2]) @ se2(-centre[0], -centre[1], 0.0)
     cost0 = _search(field, q, centre, 0, 1, 0.0, 1.0, (0.0, 0.0, 0.0))[0].item()
-    return Pinning(D @ A, cov + floor, cov_b + floor, centre, cost0, float(costs_f.min()), int(q.shape[0]))
+    return Pinning(D @ A, cov + floor, cov_b + floor, centre, cost0, float(costs_f.min()), pts)
+
+
+def _seen(field: CostField, pts: np.ndarray, A: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
+    """(the child's wall cells (thinned to MAX_POINTS) that land on the parent's known cells
+    under ``A``, where they land): only those say anything about the pose."""
+    if pts.shape[0] > MAX_POINTS:
+        pts = pts[:: int(math.ceil(pts.shape[0] / float(MAX_POINTS)))]
+    mapped = pts @ A[:2, :2].T + A[:2, 2]
+    ci = np.rint(mapped).astype(np.int64)
+    h, w = field.known.shape
+    inside = (ci[:, 0] >= 0) & (ci[:, 0] < w) & (ci[:, 1] >= 0) & (ci[:, 1] < h)
+    seen = np.zeros(len(mapped), bool)
+    seen[inside] = field.known[ci[inside, 1], ci[inside, 0]]
+    return pts[seen], mapped[seen]
+
+
+def mean_cost(field: CostField, child_points: np.ndarray, A: np.ndarray) -> Optional[float]:
+    """:attr:`Pinning.cost` of a pose ``A`` without the search (None where :func:`pinning`
+    would say nothing): the mean truncated squared wall distance (cells^2) of the child's wall
+    cells that land on the parent's known cells."""
+    _, mapped = _seen(field, child_points, A)
+    if mapped.shape[0] < MIN_POINTS:
+        return None
+    centre = mapped.mean(axis=0)
+    return _search(field, mapped - centre, centre, 0, 1, 0.0, 1.0, (0.0, 0.0, 0.0))[0].item()
 
 
 def metric_covariance(cov_cells: np.ndarray, centre: np.ndarray, T: np.ndarray,

@@ -226,6 +226,13 @@ def _cost_field(p: PairInput) -> covariance.CostField:
     return covariance.CostField(p.levels, f.dist_flat[:-1].reshape(f.shape), (int(f.offset[0]), int(f.offset[1])))
 
 
+def _offset_outer(A2: np.ndarray, A: np.ndarray, centre: np.ndarray) -> np.ndarray:
+    """outer(d, d) of the perturbation d (dx, dy cells, dyaw about ``centre``) from ``A`` to ``A2``."""
+    D = A2 @ inverse(A)
+    d = np.array([*(apply(D, centre[None, :])[0] - centre), math.atan2(D[1, 0], D[0, 0])])
+    return np.outer(d, d)
+
+
 def _pin(config: MergeConfig, pa: PairInput, ch: PairInput, r: PairEstimate) -> None:
     """An accepted estimate's covariance (``r.cov``, in the parent's metric frame; None when
     its walls say too little), from :func:`covariance.pinning` around ``r.A`` (between the
@@ -237,17 +244,21 @@ def _pin(config: MergeConfig, pa: PairInput, ch: PairInput, r: PairEstimate) -> 
     p = covariance.pinning(pa.levels, ch.levels, r.A, field, pts)
     if p is None:
         return
+    cov = p.cov
     if p.cost_best < p.cost - covariance.BETTER_COST:
         A2 = refined(config, pa, ch, p.A) if config.refine else p.A
-        p2 = covariance.pinning(pa.levels, ch.levels, A2, field, pts)
-        tol = config.agreement_tolerance
-        ag, ov = verify.agreement(pa.levels, ch.levels, A2, tol, (_known(pa)[0], _known(ch)[0]), _walls(pa, tol))
-        if (p2 is not None and p2.cost < p.cost - covariance.BETTER_COST and ag >= r.agreement
-                and ov >= config.min_overlap_cells):
-            r.A, r.agreement, r.overlap, p = A2, ag, ov, p2
+        cost2 = covariance.mean_cost(field, pts, A2)
+        if cost2 is not None and cost2 < p.cost - covariance.BETTER_COST:
+            tol = config.agreement_tolerance
+            ag, ov = verify.agreement(pa.levels, ch.levels, A2, tol, (_known(pa)[0], _known(ch)[0]),
+                                      _walls(pa, tol))
+            if ag >= r.agreement and ov >= config.min_overlap_cells:
+                # the search's moments about its best pose, plus how far ICP moved it (no search
+                # again: ICP polished the pose within the search's window)
+                r.A, r.agreement, r.overlap, cov = A2, ag, ov, p.cov_best + _offset_outer(A2, p.A, p.centre)
     T = image_to_pose(_grid_cells(r.A, pa, ch), pa.resolution, pa.origin, ch.resolution, ch.origin)
     centre = p.centre + np.array(pa.offset, np.float64)
-    r.cov = covariance.metric_covariance(p.cov, centre, T, pa.resolution, pa.origin)
+    r.cov = covariance.metric_covariance(cov, centre, T, pa.resolution, pa.origin)
 
 
 def _estimate_crops(config: MergeConfig, pa: PairInput, ch: PairInput, seed: int) -> PairEstimate:
