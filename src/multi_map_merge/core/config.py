@@ -48,6 +48,7 @@ class MergeConfig:
     agreement_tolerance: int = 2             # cells
     pose_graph: bool = True                  # place robots by all verified links at once (cycles averaged)
     ambiguity_margin: float = 0.1            # a 2nd placement verifying within this agreement: unmerged; 0 = off
+    max_position_sigma: float = 0.1          # m: a placement whose 2-sigma position exceeds this is weakly pinned
     # --- prior knowledge of where robots started (optional). A prior is the pose of a robot's map
     # frame in one frame common to all priors; only differences count (the merged frame is the
     # reference robot's map frame, and a link is checked against prior_ref^-1 * prior_robot) ---

@@ -34,7 +34,9 @@ SWITCH_MIN = 0.01
 @dataclass
 class Edge:
     """A verified transform between two robots' map frames: ``T`` maps metres in ``child``'s
-    frame to metres in ``parent``'s frame."""
+    frame to metres in ``parent``'s frame. ``cov``: 3x3 covariance of (x, y, yaw) of ``T``
+    (metres^2, radians^2; x, y in ``parent``'s frame), from the grids (:mod:`covariance`);
+    None when not known (a restored link, walls too few to say)."""
 
     parent: str
     child: str
@@ -45,6 +47,7 @@ class Edge:
     matches: int
     stamp: float
     overlap: int = 0      # cells known in both grids when it was estimated
+    cov: Optional[np.ndarray] = None
 
     def towards(self, parent: str) -> np.ndarray:
         """Pose of the other robot's frame in ``parent``'s frame."""

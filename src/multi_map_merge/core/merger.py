@@ -68,6 +68,9 @@ class RobotStatus:
     last_attempt_with: str = ''
     error: str = ''
     linked_to: Tuple[str, ...] = ()   # robots it has verified links with
+    # its verified links: (parent, child, 3x3 covariance of (x, y, yaw) of the child's map
+    # frame in the parent's, x, y in metres of the parent's frame, yaw in radians; None if unknown)
+    link_covariances: Tuple[Tuple[str, str, Optional[np.ndarray]], ...] = ()
 
 
 class MapMerger:
@@ -301,7 +304,9 @@ class MapMerger:
                         last, other = e, (b if a == n else a)
                 pl = self._placements.get(n)
                 links = tuple(sorted({b if a == n else a for (a, b) in self._edges if n in (a, b)}))
-                out[n] = RobotStatus(pl is not None, n == ref, pl, last, other, self._errors.get(n, ''), links)
+                covs = tuple((a, b, e.cov) for (a, b), e in sorted(self._edges.items()) if n in (a, b))
+                out[n] = RobotStatus(pl is not None, n == ref, pl, last, other, self._errors.get(n, ''), links,
+                                     covs)
             return out
 
     def export_state(self) -> Dict:
@@ -399,7 +404,7 @@ class MapMerger:
             if self._edges.get(key) is not old:
                 return               # forgotten (reset, map restart) meanwhile
             self._edges[key] = Edge(pa.name, ch.name, T, inlier_ratio, r.agreement, inliers, r.matches,
-                                    time.time(), r.overlap)
+                                    time.time(), r.overlap, r.cov)
             self.state_version += 1
 
     def align_pair(self, pa: RobotMap, ch: RobotMap, seed: int = 0) -> PairResult:
@@ -425,7 +430,7 @@ class MapMerger:
             if same:
                 graph_key = key              # nothing changed: the kept placements stand
             else:
-                poses = placement.graph_poses(best, graph, ref)
+                poses = placement.graph_poses(best, graph, ref, placement.link_covs(edges, graph))
                 if poses is not None:
                     graph_key = key
                     for n in best:
@@ -437,6 +442,8 @@ class MapMerger:
         placement.add_priors(c, best, maps, ref)
         # the kept placement stays unless the new one is better
         new, events = placement.hysteresis(c, best, old, edges, ref, regraphed)
+        # how well each is pinned: its links' covariances, along its chain or by the graph
+        placement.pin(c, new, edges, ref, graph_key is not None)
         with self._lock:
             if ref in maps and self._from_former_life_locked(maps[ref]):
                 return []            # the reference restarted meanwhile: every placement is void

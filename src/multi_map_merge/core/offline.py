@@ -31,7 +31,8 @@ DIGITS = {'x': 6, 'y': 6, 'yaw': 6, 'inlier_ratio': 4, 'agreement': 4}
 
 def transforms_report(merger: MapMerger, reference: str, names: List[str]) -> Dict:
     """The transforms file (``--transforms``): every map frame's placement in the merged
-    (reference) frame (:func:`state.placement_dict`, rounded), or why it is not merged."""
+    (reference) frame (:func:`state.placement_dict`, rounded), or why it is not merged; and every
+    verified link between two maps with how well the grids pin it (``sigma_position``, ``cov``)."""
     placements = merger.placements()
     status = merger.status()
     maps: Dict[str, Dict] = {}
@@ -45,8 +46,22 @@ def transforms_report(merger: MapMerger, reference: str, names: List[str]) -> Di
             maps[n] = {'merged': False, 'reason': why}
             continue
         d = placement_dict(pl)
-        maps[n] = dict(merged=True, **{k: round(v, DIGITS[k]) if k in DIGITS else v for k, v in d.items()})
-    return {'reference': reference, 'maps': maps}
+        maps[n] = dict(merged=True, **{k: _rounded(k, v) for k, v in d.items()})
+    links = []
+    for e in sorted(merger.export_state()['edges'], key=lambda e: (e['parent'], e['child'])):
+        links.append({k: _rounded(k, e[k]) for k in ('parent', 'child', 'x', 'y', 'yaw', 'sigma_position', 'cov')
+                      if k in e})
+    return {'reference': reference, 'maps': maps, 'links': links}
+
+
+def _rounded(key: str, v):
+    """A number of the transforms file as written: DIGITS decimals, a covariance to 6
+    significant digits."""
+    if key in DIGITS:
+        return round(v, DIGITS[key])
+    if key == 'cov':
+        return [float('%.6g' % x) for x in v]
+    return v
 
 
 def main(argv: Optional[List[str]] = None) -> int:
@@ -104,7 +119,15 @@ def main(argv: Optional[List[str]] = None) -> int:
                   'inliers %d  agreement %.3f  via %s' % (n, r['x'], r['y'], math.degrees(r['yaw']),
                                                           r['inlier_ratio'], r['inliers'],
                                                           r['agreement'], r['via']))
+            if 'sigma_position' in r:
+                print('  %-30s          2-sigma position %.3f m%s' % ('', 2 * r['sigma_position'],
+                                                                     ' WEAKLY PINNED' if r['weak'] else ''))
         else:
             print('  %-30s NOT merged: %s' % (n, r['reason']))
+    for lk in report['links']:
+        sigma = 'covariance unknown'
+        if 'sigma_position' in lk:
+            sigma = '2-sigma position %.3f m' % (2 * lk['sigma_position'])
+        print('  link %s -> %s: %s' % (lk['parent'], lk['child'], sigma))
     print('merged map: %s (%dx%d cells, %.3f m)' % (a.output, merged.width, merged.height, merged.resolution))
     return 0

@@ -13,7 +13,7 @@ from typing import Dict, Optional, Tuple
 import cv2
 import numpy as np
 
-from . import matching, verify
+from . import covariance, matching, verify
 from .config import MergeConfig
 from .features import FeatureExtractor, Features, coarsening
 from .grid import known_bbox
@@ -40,6 +40,9 @@ class PairResult:
         runner_up: the best clearly different placement that also passed every gate, as
             (agreement, metres, degrees from this one); None when there was none.
         stamp: seconds (time.time()) when the merger received it; 0 until then.
+        cov: of an accepted estimate, 3x3 covariance of (x, y, yaw) of the link's pose (the
+            child's map frame in the parent's): metres^2 / radians^2, x, y in the parent's
+            frame (:mod:`covariance`); None when not computed.
     """
 
     A: Optional[np.ndarray]
@@ -52,6 +55,7 @@ class PairResult:
     reason: str = ''
     runner_up: Optional[Tuple[float, float, float]] = None
     stamp: float = 0.0
+    cov: Optional[np.ndarray] = None
 
 
 @dataclass
@@ -207,9 +211,54 @@ def align_pair(config: MergeConfig, pa: PairInput, ch: PairInput, seed: int = 0)
     hypothesis is returned, or the best rejected one with its reason (also when a clearly
     different hypothesis verifies nearly as well: ambiguous, see :func:`_check_ambiguity`)."""
     r = _align_crops(config, pa, ch, seed)
+    if r.accepted:
+        _pin(config, pa, ch, r)
     if r.A is not None:
         r.A = _grid_cells(r.A, pa, ch)
     return r
+
+
+def _cost_field(p: PairInput) -> covariance.CostField:
+    """The wall cost of a parent for :func:`covariance.pinning`, from the distances ICP uses."""
+    f = _field(p)
+    if not f.ok:
+        return covariance.CostField(p.levels)
+    return covariance.CostField(p.levels, f.dist_flat[:-1].reshape(f.shape), (int(f.offset[0]), int(f.offset[1])))
+
+
+def _offset_outer(A2: np.ndarray, A: np.ndarray, centre: np.ndarray) -> np.ndarray:
+    """outer(d, d) of the perturbation d (dx, dy cells, dyaw about ``centre``) from ``A`` to ``A2``."""
+    D = A2 @ inverse(A)
+    d = np.array([*(apply(D, centre[None, :])[0] - centre), math.atan2(D[1, 0], D[0, 0])])
+    return np.outer(d, d)
+
+
+def _pin(config: MergeConfig, pa: PairInput, ch: PairInput, r: PairResult) -> None:
+    """An accepted estimate's covariance (``r.cov``, in the parent's metric frame; None when
+    its walls say too little), from :func:`covariance.pinning` around ``r.A`` (between the
+    crops' cells). Where the search finds a pose whose walls meet clearly better than ICP's
+    (ICP stopped in a local minimum: along a corridor, a wall's end a few cells off), that
+    pose, polished by ICP, replaces ``r.A`` if it also verifies at least as well."""
+    field = _derived('costfield', pa, _cost_field)
+    pts = _wall_points(ch)
+    p = covariance.pinning(pa.levels, ch.levels, r.A, field, pts)
+    if p is None:
+        return
+    cov = p.cov
+    if p.cost_best < p.cost - covariance.BETTER_COST:
+        A2 = refined(config, pa, ch, p.A) if config.refine else p.A
+        cost2 = covariance.mean_cost(field, pts, A2)
+        if cost2 is not None and cost2 < p.cost - covariance.BETTER_COST:
+            tol = config.agreement_tolerance
+            ag, ov = verify.agreement(pa.levels, ch.levels, A2, tol, (_known(pa)[0], _known(ch)[0]),
+                                      _walls(pa, tol))
+            if ag >= r.agreement and ov >= config.min_overlap_cells:
+                # the search's moments about its best pose, plus how far ICP moved it (no search
+                # again: ICP polished the pose within the search's window)
+                r.A, r.agreement, r.overlap, cov = A2, ag, ov, p.cov_best + _offset_outer(A2, p.A, p.centre)
+    T = image_to_pose(_grid_cells(r.A, pa, ch), pa.resolution, pa.origin, ch.resolution, ch.origin)
+    centre = p.centre + np.array(pa.offset, np.float64)
+    r.cov = covariance.metric_covariance(cov, centre, T, pa.resolution, pa.origin)
 
 
 def _align_crops(config: MergeConfig, pa: PairInput, ch: PairInput, seed: int) -> PairResult:

@@ -1,16 +1,19 @@
 """Where every robot's map frame sits in the merged frame, from the verified links.
 
-Four steps, in this order (:meth:`merger.MapMerger._place` runs them):
+Five steps, in this order (:meth:`merger.MapMerger._place` runs them):
 
 1. :func:`widest_paths`: each robot chained to the reference through the path whose weakest
    link has the highest inlier ratio (a robot that misses the reference chains through another).
 2. :func:`graph_poses`: where the links form cycles, an SE(2) pose graph places every robot by
-   all verified links at once (a chain adds up its links' errors, the graph averages them),
-   used only if every link agrees with its solution within GRAPH_GATE.
+   all verified links at once (a chain adds up its links' errors, the graph averages them,
+   each link weighed by the information of its covariance), used only if every link agrees
+   with its solution within GRAPH_GATE.
 3. :func:`add_priors`: robots with no chain, placed at their configured initial pose when
    those are trusted.
 4. :func:`hysteresis`: per robot the kept placement stays unless the new one is more reliable
    by ``replace_margin``, its chain broke, or the pose graph moved everyone.
+5. :func:`pin`: each placement's covariance (its links' propagated along its chain, or
+   combined by the pose graph) and whether it is weakly pinned (``max_position_sigma``).
 """
 from __future__ import annotations
 
@@ -46,6 +49,13 @@ class Placement:
     via: str                      # the robot it is linked through ('' for the reference)
     path: Tuple[str, ...]         # reference ... robot
     stamp: float                  # seconds when this placement was adopted
+    # 3x3 covariance of (x, y, yaw) of T (metres^2, radians^2; x, y in the merged frame): the
+    # links' covariances propagated along its chain, or combined by the pose graph; None when
+    # not known (the reference, a robot at its prior, a link without one)
+    cov: Optional[np.ndarray] = None
+    # weakly pinned: 2-sigma position (worst direction) over ``max_position_sigma``, or placed
+    # at its prior (no link pins it)
+    weak: bool = False
 
 
 def widest_paths(edges: Links, names: Iterable[str], ref: str) -> Dict[str, Placement]:
@@ -86,16 +96,51 @@ def graph_links(edges: Links, placed: Iterable[str]) -> Tuple[list, tuple]:
     return links, key
 
 
-def graph_poses(best: Dict[str, Placement], links: list, ref: str) -> Optional[Dict[str, np.ndarray]]:
+def link_covs(edges: Links, links: list) -> List[Optional[np.ndarray]]:
+    """The covariance of each of ``links`` (as :func:`graph_links` gives them), None where unknown."""
+    return [edges[(a, b)].cov for a, b, _, _ in links]
+
+
+def graph_poses(best: Dict[str, Placement], links: list, ref: str,
+                covs: Optional[List[Optional[np.ndarray]]] = None) -> Optional[Dict[str, np.ndarray]]:
     """Every placed robot's pose by all ``links`` at once (the reference held fixed), or None
-    when there is no cycle or a link disagrees with the solution by more than GRAPH_GATE."""
+    when there is no cycle or a link disagrees with the solution by more than GRAPH_GATE.
+    ``covs``: the links' covariances (:func:`link_covs`): each link weighed by its information."""
     if len(links) < len(best):
         return None
-    opt = posegraph.optimise({n: p.T for n, p in best.items()}, links, ref)
+    opt = posegraph.optimise({n: p.T for n, p in best.items()}, links, ref, covs=covs)
     worst = posegraph.worst_residual(opt, links)
     if worst is not None and worst[0] <= GRAPH_GATE[0] and worst[1] <= GRAPH_GATE[1]:
         return opt
     return None
+
+
+def pin(config: MergeConfig, placements: Dict[str, Placement], edges: Links, ref: str,
+        graph: bool) -> None:
+    """Set every placement's covariance and weak flag (in place): by all links among the placed
+    robots when the pose graph placed them (``graph``), else along each robot's chain."""
+    linked = {n: p for n, p in placements.items() if p.via != PRIOR}
+    if graph:
+        keys = [k for k in edges if k[0] in linked and k[1] in linked]
+    else:
+        keys = set()
+        for p in linked.values():
+            for a, b in zip(p.path, p.path[1:]):
+                keys.add((a, b) if (a, b) in edges else (b, a))
+        keys = sorted(k for k in keys if k in edges)
+    links = [(a, b, edges[(a, b)].T, 1.0) for a, b in keys]
+    covs = posegraph.covariances({n: p.T for n, p in linked.items()}, links, ref, link_covs(edges, links))
+    for n, p in placements.items():
+        if n == ref:
+            p.cov, p.weak = None, False
+            continue
+        p.cov = covs.get(n)
+        p.weak = p.via == PRIOR or p.cov is None or 2.0 * position_sigma(p.cov) > config.max_position_sigma
+
+
+def position_sigma(cov: np.ndarray) -> float:
+    """Standard deviation (metres) of a pose's position along its worst direction."""
+    return float(math.sqrt(max(0.0, float(np.linalg.eigvalsh(np.asarray(cov)[:2, :2])[-1]))))
 
 
 def add_priors(config: MergeConfig, best: Dict[str, Placement], names: Iterable[str], ref: str) -> None:
@@ -106,7 +151,7 @@ def add_priors(config: MergeConfig, best: Dict[str, Placement], names: Iterable[
         for n in names:
             if n not in best and n in priors:
                 T = inverse(se2(*priors[ref])) @ se2(*priors[n])
-                best[n] = Placement(T, 0.0, 0.0, 0, PRIOR, (ref, n), time.time())
+                best[n] = Placement(T, 0.0, 0.0, 0, PRIOR, (ref, n), time.time(), weak=True)
 
 
 def hysteresis(config: MergeConfig, best: Dict[str, Placement], old: Dict[str, Placement],

@@ -14,10 +14,12 @@ from __future__ import annotations
 
 import os
 import tempfile
-from typing import Any, Dict
+from typing import Any, Dict, Optional
 
+import numpy as np
 import yaml
 
+from . import covariance
 from .links import Edge
 from .placement import Placement
 from .transforms import se2, xyyaw
@@ -26,11 +28,11 @@ from .transforms import se2, xyyaw
 def link_dict(e: Edge) -> Dict[str, Any]:
     """A verified link as plain data (the state file's ``edges``): x, y, yaw (metres, radians:
     the pose of the child's map frame in the parent's), parent, child, inlier_ratio,
-    agreement, inliers, matches."""
+    agreement, inliers, matches, and how well the grids pin it (:func:`cov_fields`)."""
     x, y, yaw = xyyaw(e.T)
     return {'x': float(x), 'y': float(y), 'yaw': float(yaw), 'parent': e.parent, 'child': e.child,
             'inlier_ratio': float(e.inlier_ratio), 'agreement': float(e.agreement),
-            'inliers': int(e.inliers), 'matches': int(e.matches)}
+            'inliers': int(e.inliers), 'matches': int(e.matches), **cov_fields(e.cov)}
 
 
 def link_from_dict(d: Dict[str, Any], stamp: float) -> Edge:
@@ -38,19 +40,33 @@ def link_from_dict(d: Dict[str, Any], stamp: float) -> Edge:
     inlier ratio had its name say ``reliability``: both are read. Raises KeyError, TypeError
     or ValueError when ``d`` is not such data."""
     ratio = d['inlier_ratio'] if 'inlier_ratio' in d else d['reliability']
-    return Edge(str(d['parent']), str(d['child']), se2(float(d['x']), float(d['y']), float(d['yaw'])),
-                float(ratio), float(d['agreement']), int(d['inliers']), int(d.get('matches', 0)), stamp)
+    e = Edge(str(d['parent']), str(d['child']), se2(float(d['x']), float(d['y']), float(d['yaw'])),
+             float(ratio), float(d['agreement']), int(d['inliers']), int(d.get('matches', 0)), stamp)
+    if d.get('cov') is not None:   # files written before links had a covariance have none
+        e.cov = np.array([float(v) for v in d['cov']]).reshape(3, 3)
+    return e
 
 
 def placement_dict(pl: Placement) -> Dict[str, Any]:
     """A placement as plain data, the one form of it everywhere (the state file, merge_maps'
     transforms file, /diagnostics): x, y, yaw (metres, radians: the pose of the robot's map
     frame in the merged frame), inlier_ratio, agreement, inliers (the weakest along its chain),
-    via (the robot it is linked through, '' for the reference) and chain (reference ... robot)."""
+    via (the robot it is linked through, '' for the reference), chain (reference ... robot),
+    weak (2-sigma position over ``max_position_sigma``) and its covariance (:func:`cov_fields`)."""
     x, y, yaw = xyyaw(pl.T)
     return {'x': float(x), 'y': float(y), 'yaw': float(yaw), 'inlier_ratio': float(pl.inlier_ratio),
             'agreement': float(pl.agreement), 'inliers': int(pl.inliers), 'via': pl.via,
-            'chain': list(pl.path)}
+            'chain': list(pl.path), 'weak': bool(pl.weak), **cov_fields(pl.cov)}
+
+
+def cov_fields(cov: Optional[np.ndarray]) -> Dict[str, Any]:
+    """A covariance as plain data: ``cov`` (9 floats, row-major, of x, y, yaw: metres^2,
+    radians^2) and ``sigma_position`` (metres, the worst direction's standard deviation); nothing
+    when unknown."""
+    if cov is None:
+        return {}
+    return {'cov': [float(v) for v in np.asarray(cov).ravel()],
+            'sigma_position': covariance.position_sigma(cov)}
 
 
 def save_state(path: str, state: Dict[str, Any]) -> None:

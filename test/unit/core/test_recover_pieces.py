@@ -39,13 +39,16 @@ def test_core_api_recovers_every_pose(world, n, seed):
         assert np.linalg.det(pl['p%d' % i].T[:2, :2]) == pytest.approx(1.0)
 
 
-MERGED_KEYS = {'merged', 'x', 'y', 'yaw', 'inlier_ratio', 'inliers', 'agreement', 'via', 'chain'}
+MERGED_KEYS = {'merged', 'x', 'y', 'yaw', 'inlier_ratio', 'inliers', 'agreement', 'via', 'chain', 'weak',
+               'sigma_position', 'cov'}
 
 
 def check_report(report, ps, stems):
     """The transforms file's exact shape (README: reference, maps: {stem: {merged, x, y, yaw,
-    inlier_ratio, agreement, inliers, via, chain}}) and every pose against the truth."""
-    assert set(report) == {'reference', 'maps'} and report['reference'] == stems[0]
+    inlier_ratio, agreement, inliers, via, chain, weak, sigma_position, cov}}, links) and every
+    pose against the truth."""
+    assert set(report) == {'reference', 'maps', 'links'} and report['reference'] == stems[0]
+    check_links(report['links'], ps, stems)
     assert set(report['maps']) == set(stems[1:])
     for i, s in enumerate(stems[1:], 1):
         r = report['maps'][s]
@@ -56,6 +59,25 @@ def check_report(report, ps, stems):
         assert 0 < r['inlier_ratio'] <= 1 and r['inliers'] >= 10 and 0.8 <= r['agreement'] <= 1
         d, a = pose_error(se2(r['x'], r['y'], r['yaw']), truth(ps[0][1], ps[i][1]))
         assert d <= 0.10 and a <= 1.0, '%s off by %.3f m %.2f deg' % (s, d, a)
+        # pieces of a third of a building, rooms and corners: pinned well in every direction
+        assert 0.005 < r['sigma_position'] < 0.05 and r['weak'] is False
+        C = np.array(r['cov']).reshape(3, 3)
+        assert r['sigma_position'] == pytest.approx(np.sqrt(np.linalg.eigvalsh(C[:2, :2])[-1]), rel=1e-3)
+
+
+def check_links(links, ps, stems):
+    """Every verified link: its pose against the truth, and a covariance (row-major 3x3,
+    symmetric, positive definite) whose position sigma is its worst direction's."""
+    assert links
+    for lk in links:
+        assert set(lk) == {'parent', 'child', 'x', 'y', 'yaw', 'cov', 'sigma_position'}, sorted(lk)
+        i, j = stems.index(lk['parent']), stems.index(lk['child'])
+        d, a = pose_error(se2(lk['x'], lk['y'], lk['yaw']), truth(ps[i][1], ps[j][1]))
+        assert d <= 0.10 and a <= 1.0
+        C = np.array(lk['cov']).reshape(3, 3)
+        assert np.allclose(C, C.T, rtol=1e-4, atol=1e-12) and np.all(np.linalg.eigvalsh(C) > 0)
+        assert lk['sigma_position'] == pytest.approx(np.sqrt(np.linalg.eigvalsh(C[:2, :2])[-1]), rel=1e-3)
+        assert 0.005 < lk['sigma_position'] < 0.5
 
 
 def write_pieces(tmp_path, ps):

@@ -1,0 +1,83 @@
+"""Placements weighed by their links' information and carrying their covariance (issue 22):
+a link through a corridor pins its robot across it; another link pins the weak direction."""
+import math
+
+import numpy as np
+import pytest
+
+from multi_map_merge.core import posegraph
+from multi_map_merge.core.config import MergeConfig
+from multi_map_merge.core.merger import MapMerger
+from multi_map_merge.core.placement import position_sigma
+from multi_map_merge.core.transforms import se2, xyyaw
+from multi_map_merge.lab.synth import cut_piece, split_rects
+
+TIGHT = np.diag([0.01 ** 2, 0.01 ** 2, math.radians(0.05) ** 2])
+CORRIDOR_X = np.diag([0.2 ** 2, 0.01 ** 2, math.radians(0.05) ** 2])   # slides along x
+
+
+def links_triangle(err=0.2):
+    """r -> a through a corridor along x, measured ``err`` too far along it; r -> b and b -> a
+    pinned. Truth: a at (5, 0), b at (0, 5), no turns."""
+    return [('r', 'a', se2(5.0 + err, 0.0, 0.0), 1.0), ('r', 'b', se2(0.0, 5.0, 0.0), 1.0),
+            ('b', 'a', se2(5.0, -5.0, 0.0), 1.0)]
+
+
+def test_information_lets_the_pinned_links_place_the_corridor_robot():
+    links = links_triangle()
+    poses = {'r': np.eye(3), 'a': links[0][2], 'b': links[1][2]}
+    by_info = posegraph.optimise(poses, links, 'r', covs=[CORRIDOR_X, TIGHT, TIGHT])
+    by_count = posegraph.optimise(poses, links, 'r')
+    x_info, x_count = xyyaw(by_info['a'])[0], xyyaw(by_count['a'])[0]
+    # with equal weights the corridor's error is shared out; by information the pinned path wins
+    assert abs(x_info - 5.0) < 0.01 and abs(x_count - 5.0) > 0.05, (x_info, x_count)
+    # and without covariances the result is the old one, exactly
+    assert np.array_equal(posegraph.optimise(poses, links, 'r', covs=[None, None, None])['a'], by_count['a'])
+
+
+def test_placement_covariance_weak_alone_pinned_with_a_second_link():
+    links = links_triangle(0.0)
+    poses = {'r': np.eye(3), 'a': se2(5.0, 0.0, 0.0), 'b': se2(0.0, 5.0, 0.0)}
+    alone = posegraph.covariances(poses, links[:2], 'r', [CORRIDOR_X, TIGHT])
+    assert 2 * position_sigma(alone['a']) == pytest.approx(0.4, rel=0.01)
+    both = posegraph.covariances(poses, links, 'r', [CORRIDOR_X, TIGHT, TIGHT])
+    assert 2 * position_sigma(both['a']) < 0.05
+    assert 2 * position_sigma(both['b']) < 0.05
+
+
+def test_a_chain_propagates_its_links_covariances():
+    """r -> a -> c, all facing x: c's sideways variance is both links' plus the first link's
+    turn times the 10 m lever of the second."""
+    s_yaw = math.radians(0.2)
+    C1 = np.diag([0.01 ** 2, 0.02 ** 2, s_yaw ** 2])
+    C2 = np.diag([0.03 ** 2, 0.01 ** 2, s_yaw ** 2])
+    links = [('r', 'a', se2(5.0, 0.0, 0.0), 1.0), ('a', 'c', se2(10.0, 0.0, 0.0), 1.0)]
+    poses = {'r': np.eye(3), 'a': se2(5.0, 0.0, 0.0), 'c': se2(15.0, 0.0, 0.0)}
+    cov = posegraph.covariances(poses, links, 'r', [C1, C2])
+    assert cov['a'] == pytest.approx(C1, abs=1e-12)
+    assert cov['c'][0, 0] == pytest.approx(0.01 ** 2 + 0.03 ** 2)
+    assert cov['c'][1, 1] == pytest.approx(0.02 ** 2 + 0.01 ** 2 + (10.0 * s_yaw) ** 2)
+    assert cov['c'][2, 2] == pytest.approx(2 * s_yaw ** 2)
+
+
+def intel_pair(intel, **kw):
+    rs = split_rects(intel, 2, 0.3)
+    ps = [cut_piece(intel, r, p) for r, p in zip(rs, [(1.0, 2.0, 0.4), (-2.0, 0.5, -1.2)])]
+    m = MapMerger(MergeConfig(workers=1, **kw))
+    m.update_map('a', ps[0][0])
+    m.update_map('b', ps[1][0])
+    m.estimate()
+    return m
+
+
+def test_status_reports_how_well_a_robot_is_placed(intel):
+    st = intel_pair(intel).status()
+    pl = st['b'].placement
+    assert pl.cov is not None and pl.weak is False
+    assert np.allclose(pl.cov, st['b'].link_covariances[0][2])      # one link: its own
+    assert st['a'].placement.cov is None and st['a'].placement.weak is False   # the reference
+    exp = intel_pair(intel).export_state()['placements']['b']
+    assert exp['weak'] is False and 0 < exp['sigma_position'] < 0.05
+    # the same placement, asked to be pinned within a millimetre, is reported weak, still merged
+    st = intel_pair(intel, max_position_sigma=0.001).status()
+    assert st['b'].merged and st['b'].placement.weak is True
