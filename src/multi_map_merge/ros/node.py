@@ -20,6 +20,7 @@ from ..core.config import MergeConfig
 from ..core.grid import Grid, GridError, apply_update
 from ..core.merger import MapMerger
 from ..core.state import load_state, save_state
+from ..core.workers import start_pool
 from .convert import NumpyGrid, NumpyGridUpdate, grid_from_msg, grid_to_msg, metadata, transform_msg
 from .diagnostics import diagnostics_msg
 from .params import resolve_params
@@ -314,6 +315,9 @@ class MergeNode:
 
 
 def run_merge_node() -> None:
+    # the estimation workers forked before rospy starts its threads: they share the node's
+    # memory (core/workers.py); a ~workers other than the default restarts them
+    start_pool(0)
     rospy.init_node('map_merge')
     MergeNode(load_config())
     rospy.spin()
