@@ -108,6 +108,19 @@ def estimate_duel(paths, pr, root):
         _close([ours] + list(peers.values()))
 
 
+def run_soak(out, no_peer):
+    """bench/soak.py (the live node's memory, CPU and threads over 30 robot minutes at 10x; its
+    own roscore), in its own process: {'text': its summary, 'json': results/soak.json} or why not."""
+    cmd = [sys.executable, os.path.join(HERE, 'soak.py'), '--no-build', '--out', out]
+    path = os.path.join(out, 'soak.txt')
+    if os.path.exists(path):
+        os.remove(path)     # (a failed run must not show the last run's summary)
+    r = subprocess.run(cmd + (['--no-peer'] if no_peer else []), capture_output=True, text=True)
+    if r.returncode != 0 or not os.path.exists(path):
+        return {'text': 'SOAK: NOT measured: bench/soak.py failed:\n' + r.stderr[-1500:], 'json': None}
+    return {'text': open(path).read().rstrip(), 'json': os.path.join(out, 'soak.json')}
+
+
 def memory_only(a):
     """Each row's peak memory: ours (memory_ours) against m-explore's full run (its peak RSS),
     measured one after the other on the same maps (memory does not depend on the load)."""
@@ -137,6 +150,9 @@ def main():
     ap.add_argument('--no-peer', action='store_true', help='measure our side only')
     ap.add_argument('--peer-max-robots', type=int, default=16,
                     help='m-explore\'s full run only up to this many robots (it grows fast)')
+    ap.add_argument('--no-soak', action='store_true',
+                    help='skip the soak (bench/soak.py: the live node over 30 robot minutes at 10x, '
+                         'about 3 min, 6 with m-explore); --quick skips it too')
     ap.add_argument('--memory-only', action='store_true',
                     help='only the memory: the node\'s tree against m-explore\'s full run (about 3 min); '
                          'prints the table, writes nothing')
@@ -192,12 +208,17 @@ def main():
             flush=True)
     text = report.rows_table(rows, note)
     print(text)
+    soak = None
+    if not (a.quick or a.no_soak):
+        soak = run_soak(a.out, a.no_peer)
+        print('\n' + soak['text'])
     total = time.time() - t_all
     mach = report.machine()
     print('\nrun_bench took %.0f s on %d cores (%s, %s MB RAM)' % (total, mach['nproc'], mach['cpu_model'],
                                                                   mach['mem_total_mb']))
     result = {'machine': mach, 'total_s': total, 'peer_measured': peer_ok, 'peer_note': note,
-              'tolerance': {'m': report.TOL_M, 'deg': report.TOL_DEG}, 'rows': rows, 'table': text}
+              'tolerance': {'m': report.TOL_M, 'deg': report.TOL_DEG}, 'rows': rows, 'table': text,
+              'soak': soak}
     with open(os.path.join(a.out, 'bench.json'), 'w') as f:
         json.dump(result, f, indent=1)
     try:
