@@ -2,7 +2,7 @@
 """Does estimation block publishing? The live node while a long estimation runs and /map has new
 content to publish every merge period.
 
-    python3 bench/live_gap.py [--robots 4] [--late 8] [--join-at 12] [--seconds 40] [--min-periods 4]
+    python3 bench/live_gap.py [--robots 4] [--late 12] [--join-at 12] [--seconds 40] [--min-periods 4]
                               [--port 11800] [--no-peer] [--no-build]
 
 Runs `make build` first (unless --no-build) and takes the environment of the workspace's
@@ -10,7 +10,7 @@ devel/setup.bash, so it needs nothing sourced.
 
 Starts its own roscore (port 11800, another free one if taken) and a map publisher (this script,
 --publish): ``--robots`` robots whose maps (windows of the edmonton ground-truth map, or of the
-shipped intel map without ../shared) grow every merge period for the whole window, so that the
+shipped intel map without ../shared) grow twice per merge period for the whole window, so that the
 merged map changes every period and /map has a reason of content to flow (a node that publishes
 /map only when the merge changed stays silent otherwise); at ``--join-at`` seconds ``--late``
 robots with big maps (windows of half the map, about 1.8 M cells each) join at once: their cold
@@ -226,7 +226,7 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     ap.add_argument('--robots', type=int, default=4,
                     help='robots whose maps grow every merge period (windows of 35%% of edmonton)')
-    ap.add_argument('--late', type=int, default=8,
+    ap.add_argument('--late', type=int, default=12,
                     help='robots joining at --join-at with big maps (windows of half edmonton, ~1.8 M cells)')
     ap.add_argument('--join-at', type=float, default=12.0, help='seconds after the node\'s start')
     ap.add_argument('--seconds', type=float, default=40.0)
@@ -246,7 +246,9 @@ def main():
     n = a.robots + a.late
     robots = ['tb3_%d' % k for k in range(n)]
     pieces = pieces_windows(world, a.robots, 0.35, seed=3) + pieces_windows(world, a.late, 0.5, seed=4)
-    spec = {'period': 0.5, 'grow_from': 0.6, 'grow_s': a.seconds, 'robots': []}
+    # the growing robots send a new map twice per merge period: whatever the phase between their
+    # messages and the node's timer, every merge period has new cells to publish
+    spec = {'period': 0.25, 'grow_from': 0.6, 'grow_s': a.seconds, 'robots': []}
     cells = []
     for k, (r, (g, _)) in enumerate(zip(robots, pieces)):
         p = os.path.join(tmp, r + '.yaml')
@@ -286,7 +288,7 @@ def main():
     results = {'machine': machine(), 'robots': n, 'growing': a.robots, 'late': a.late, 'join_at_s': a.join_at,
                'map_cells_growing': int(sorted(cells[:a.robots])[a.robots // 2]) if a.robots else None,
                'map_cells_late': int(sorted(cells[a.robots:])[a.late // 2]) if a.late else None,
-               'settings': {'publisher': 'growing every 0.5 s from 60%% to 100%% of their radius over %.0f s; '
+               'settings': {'publisher': 'growing every 0.25 s from 60%% to 100%% of their radius over %.0f s; '
                                          'late robots latched once at join' % a.seconds,
                             'merge_rate': 2.0, 'tf_rate': 20.0, 'merge_period_s': 0.5,
                             'estimation_rate': 'node default', 'min_periods': a.min_periods}}
