@@ -179,7 +179,8 @@ def _worker_init() -> None:
     import threading
     threading.Thread(target=_trim_when_idle, name='trim', daemon=True).start()
     import cv2
-    cv2.setNumThreads(1)
+    if cv2.getNumThreads() != 1:   # (a forked worker is on one thread already: see start_pool)
+        cv2.setNumThreads(1)
     _one_blas_thread()
 
 
@@ -233,7 +234,10 @@ def start_pool(workers: int = 0) -> None:
     from concurrent.futures import ProcessPoolExecutor
     n = workers or os.cpu_count() or 1
     if _POOL is not None:
-        _POOL.shutdown(wait=False)
+        # waiting for the old workers (idle: a pool is replaced only when the configured size
+        # differs from the one started early); Python 3.8's executor left behind with wait=False
+        # can hang the interpreter's exit
+        _POOL.shutdown(wait=True)
         _POOL, _POOL_SIZE = None, 0
     if n <= 1:
         return
@@ -244,7 +248,16 @@ def start_pool(workers: int = 0) -> None:
         ctx.set_forkserver_preload([__name__.rsplit('.', 1)[0] + '.pair'])
     pool = ProcessPoolExecutor(max_workers=n, mp_context=ctx, initializer=_worker_init)
     if ctx.get_start_method() == 'fork':
-        # every worker forked now, before this process starts a thread (the pool's own thread
-        # starts with its first task: Python forks all of a 'fork' pool's workers then)
-        pool.submit(int).result()
+        # Every worker forked now, before this process starts a thread (the pool's own thread
+        # starts with its first task: Python forks all of a 'fork' pool's workers then), and
+        # with OpenCV on one thread meanwhile: OpenCV's own thread pool, once started (a warp
+        # before), would be copied without its threads, and a worker changing its thread count
+        # would wait for them for ever (seen with OpenCV 4.2's pthreads pool).
+        import cv2
+        threads = cv2.getNumThreads()
+        cv2.setNumThreads(1)
+        try:
+            pool.submit(int).result()
+        finally:
+            cv2.setNumThreads(threads)
     _POOL, _POOL_SIZE = pool, n
