@@ -4,6 +4,7 @@
     python3 bench/ours.py SPEC.json          -> one JSON line on stdout
     python3 bench/ours.py --serve SPEC.json  -> compositing bursts on demand (see serve())
     python3 bench/ours.py --serve-estimate SPEC.json  -> cold estimation cycles on demand
+    python3 bench/ours.py --memory SPEC.json -> the node's memory on these maps (see memory())
 
 SPEC: {"paths": [map yaml...], "truth": [3x3 pose of map k in map 0's frame] or null,
 "reps": R, "pairs": [[a, b], ...]}. Measures, with the project's defaults (MergeConfig()):
@@ -29,7 +30,8 @@ SPEC: {"paths": [map yaml...], "truth": [3x3 pose of map k in map 0's frame] or 
   publish_ms    ros.convert.grid_to_msg (numpy_msg OccupancyGrid) + msg.serialize(BytesIO) of
                 the merged grid, COMPOSE_REPS times back to back, median (publish_first_ms: once
                 per cycle, after the first compose)
-  rss_mb        peak RSS: this process's ru_maxrss plus each worker process's VmHWM
+  rss_sum_mb    this process's ru_maxrss plus each worker process's VmHWM (shared pages counted
+                once per process: an upper bound, and not the node's imports: see --memory)
 and the placements (``poses``: x, y, yaw of each placed map's frame in map 0's frame, metres and
 radians; m-explore composites the same output on them), scored against ``truth`` when given.
 """
@@ -176,7 +178,62 @@ def serve_estimate(spec):
         print(json.dumps({'ms': ms, 'placed': len(m.placements()) - 1}), flush=True)
 
 
+def _read_pgm(path, flags=None):
+    """An 8-bit binary PGM (what map_saver and save_map write) as cv2.imread(path, GRAYSCALE)
+    returns it; anything else through cv2.imread."""
+    import cv2
+    with open(path, 'rb') as f:
+        raw = f.read()
+    fields, pos = [], 0
+    while len(fields) < 4 and raw[:2] == b'P5':
+        while raw[pos:pos + 1].isspace():
+            pos += 1
+        if raw[pos:pos + 1] == b'#':
+            pos = raw.index(b'\n', pos)
+            continue
+        end = pos
+        while not raw[end:end + 1].isspace():
+            end += 1
+        fields.append(raw[pos:end])
+        pos = end
+    if len(fields) == 4 and int(fields[3]) == 255:
+        w, h = int(fields[1]), int(fields[2])
+        return np.frombuffer(raw, np.uint8, w * h, pos + 1).reshape(h, w).copy()
+    return cv2.imread(path, cv2.IMREAD_GRAYSCALE if flags is None else flags)
+
+
+def memory(spec):
+    """The node's memory on these maps, as bench/memtree.py's watch() measures it from outside:
+    the node's imports (multi_map_merge.ros.node), its worker pool started as the node starts it
+    (before any thread), then ``reps`` cycles of what the node does with the maps: a merger
+    holding every map (new each cycle: cold), estimate(), compose(), the merged grid as a
+    message, serialised. Prints {"placed": ...} when done, then waits for stdin to close.
+
+    The maps are read without cv2.imread: the node gets them as messages, and imread's probing of
+    its decoders maps about 10 MB of GDAL's library that the node never touches."""
+    import multi_map_merge.ros.node  # noqa: F401  (the node's imports, first, as in the node)
+    from multi_map_merge.core import mapio, workers
+    from multi_map_merge.core.config import MergeConfig
+    from multi_map_merge.core.merger import MapMerger
+    workers.start_pool(0)
+    mapio.cv2 = type('cv2_without_imread', (), {'imread': staticmethod(_read_pgm),
+                                                  'IMREAD_GRAYSCALE': 0})
+    cfg = MergeConfig()
+    grids = [mapio.load_map(p) for p in spec['paths']]
+    for _ in range(int(spec.get('reps', 3))):
+        m = MapMerger(cfg)
+        for k, g in enumerate(grids):
+            m.update_map('r%02d' % k, g)
+        m.estimate()
+        publish(m.compose())
+    time.sleep(0.1)
+    print(json.dumps({'placed': len(m.placements()) - 1}), flush=True)
+    sys.stdin.read()
+
+
 def main():
+    if sys.argv[1] == '--memory':
+        return memory(json.load(open(sys.argv[2])))
     if sys.argv[1] == '--serve':
         return serve(json.load(open(sys.argv[2])))
     if sys.argv[1] == '--serve-estimate':
@@ -265,8 +322,7 @@ def main():
         'compose_again_ms': med(comp_again),
         'publish_first_ms': med(pub), 'publish_ms': b2b['publish_ms'], 'live_ms': b2b['live_ms'],
         'published_bytes': published_bytes,
-        'rss_mb': resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0 + worker_peaks_mb(),
-        'rss_self_mb': resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+        'rss_sum_mb': resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0 + worker_peaks_mb(),
         'workers': len(mm._POOL._processes) if mm._POOL is not None else 1,
         'robots': len(grids), 'placed': len(P) - 1,
         'errors': errs, 'poses': poses, 'compose_reps': COMPOSE_REPS,

@@ -112,11 +112,14 @@ def rows_table(rows, peer_note):
             '%s / %s = %s' % (_f(cp, '%.1f'), _f(own[0], '%.1f'), _f(own[1], '%.2fx')),
             '%s = %s' % (_f(same[0], '%.1f'), _f(same[1], '%.2fx')),
             '%s = %s' % (_f(live[0], '%.1f'), _f(live[1], '%.2fx'))))
-    h = '%-16s %3s | %-30s | %-16s | %-38s' % ('input', 'N', 'peak RSS MB (ours: +workers)', 'placed (ok)',
+    h = '%-16s %3s | %-30s | %-16s | %-38s' % ('input', 'N', 'peak MB (ours: node + workers)', 'placed (ok)',
                                                 'max error: ours | m-explore')
     out += ['', 'MEMORY AND CORRECTNESS  (placed: robots put in the merged frame besides the reference; '
-            'ok: within %.1f m and %.0f deg of the truth; peak RSS: ours = process + worker processes '
-            '(process alone in brackets))' % (TOL_M, TOL_DEG), h, '-' * len(h)]
+            'ok: within %.1f m and %.0f deg of the truth; peak memory: ours = the node\'s process tree '
+            '(bench/ours.py --memory: the node\'s imports, its workers forked as the node forks them, '
+            'its work on the maps), every physical page counted once, sampled every 20 ms (the node\'s '
+            'process alone in brackets); m-explore: its process\'s peak RSS)' % (TOL_M, TOL_DEG),
+            h, '-' * len(h)]
     for r in rows:
         o, p = r['ours'], r['peer']
 
@@ -186,8 +189,8 @@ def plot(rows, path):
         a.set_yscale('log')
         a.set_ylabel('ms')
 
-    series(ax[2], sweep, n, 'ours', 'rss_mb', 'o-', 'ours (process + workers)')
-    series(ax[2], sweep, n, 'ours', 'rss_self_mb', 'd-', 'ours (process alone)')
+    series(ax[2], sweep, n, 'ours', 'rss_mb', 'o-', 'ours (node + workers, pages once)')
+    series(ax[2], sweep, n, 'ours', 'rss_self_mb', 'd-', 'ours (node process alone)')
     series(ax[2], sweep, n, 'peer', 'rss_mb', 'o--', 'm-explore')
     ax[2].set_xscale('log', base=2)
     ax[2].set_xlabel('robots (intel-sized maps)')

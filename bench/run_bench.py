@@ -25,6 +25,7 @@ sys.path.insert(0, HERE)
 
 import duel  # noqa: E402
 import inputs  # noqa: E402
+import memtree  # noqa: E402
 import peer  # noqa: E402
 import report  # noqa: E402
 
@@ -39,6 +40,16 @@ def run_ours_once(paths, truth, pairs, root, reps):
     if r.returncode != 0:
         raise RuntimeError('bench/ours.py failed:\n' + r.stderr[-3000:])
     return json.loads(r.stdout.strip().splitlines()[-1])
+
+
+def memory_ours(paths, root, reps):
+    """The node's memory on these maps (bench/ours.py --memory, watched by bench/memtree.py):
+    the peak of its process tree (the node-like process and its workers), each physical page
+    counted once; PSS where pages cannot be counted (not root)."""
+    spec = os.path.join(root, 'memory_%d.json' % len(os.listdir(root)))
+    with open(spec, 'w') as f:
+        json.dump({'paths': paths, 'reps': reps}, f)
+    return memtree.watch([sys.executable, os.path.join(HERE, 'ours.py'), '--memory', spec])
 
 
 def run_ours(paths, truth, runs, pairs, root, reps):
@@ -97,14 +108,58 @@ def estimate_duel(paths, pr, root):
         _close([ours] + list(peers.values()))
 
 
+def run_soak(out, no_peer):
+    """bench/soak.py (the live node's memory, CPU and threads over 30 robot minutes at 10x; its
+    own roscore), in its own process: {'text': its summary, 'json': results/soak.json} or why not."""
+    cmd = [sys.executable, os.path.join(HERE, 'soak.py'), '--no-build', '--out', out]
+    path = os.path.join(out, 'soak.txt')
+    if os.path.exists(path):
+        os.remove(path)     # (a failed run must not show the last run's summary)
+    r = subprocess.run(cmd + (['--no-peer'] if no_peer else []), capture_output=True, text=True)
+    if r.returncode != 0 or not os.path.exists(path):
+        return {'text': 'SOAK: NOT measured: bench/soak.py failed:\n' + r.stderr[-1500:], 'json': None}
+    return {'text': open(path).read().rstrip(), 'json': os.path.join(out, 'soak.json')}
+
+
+def memory_only(a):
+    """Each row's peak memory: ours (memory_ours) against m-explore's full run (its peak RSS),
+    measured one after the other on the same maps (memory does not depend on the load)."""
+    peer_ok, note = (False, 'm-explore not measured (--no-peer)') if a.no_peer else peer.available()
+    root = tempfile.mkdtemp(prefix='mmm_bench_')
+    pr = peer.Peer(root) if peer_ok else None
+    h = '%-16s %3s | %-9s %-9s %-9s %-9s | %-12s | %s' % ('input', 'N', 'ours MB', '(node)', 'RSS sum', 'PSS',
+                                                         'm-explore MB', 'ratio (target <= 2)')
+    print('PEAK MEMORY  (ours: the node\'s process tree, pages counted once; RSS sum: each process\'s '
+          'peak RSS summed, the old figure; m-explore: peak RSS of its full run)%s\n%s\n%s' % (
+              '' if peer_ok else '  NOTE: ' + note, h, '-' * len(h)), flush=True)
+    for name, _kind, gt in inputs.configurations(a.quick):
+        paths, _ = inputs.write_inputs(name.replace(' ', '_'), gt, root)
+        n = len(paths)
+        cycles = 1 if n > 8 or inputs.median_cells(paths) > 1_500_000 else 3
+        m = memory_ours(paths, root, cycles)
+        ours = m['unique_mb'] if m['unique_mb'] is not None else m['pss_mb']
+        theirs = pr.run(paths, cycles)[2] if pr is not None and n <= a.peer_max_robots else None
+        print('%-16s %3d | %-9.0f %-9.0f %-9.0f %-9.0f | %-12s | %s' % (
+            name, n, ours, m['self_hwm_mb'], m['hwm_sum_mb'], m['pss_mb'], report._f(theirs, '%.0f'),
+            report._f(report._r(ours, theirs), '%.2fx')), flush=True)
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     ap.add_argument('--quick', action='store_true', help='fewer, smaller configurations (about a minute)')
     ap.add_argument('--no-peer', action='store_true', help='measure our side only')
     ap.add_argument('--peer-max-robots', type=int, default=16,
                     help='m-explore\'s full run only up to this many robots (it grows fast)')
+    ap.add_argument('--no-soak', action='store_true',
+                    help='skip the soak (bench/soak.py: the live node over 30 robot minutes at 10x, '
+                         'about 3 min, 6 with m-explore); --quick skips it too')
+    ap.add_argument('--memory-only', action='store_true',
+                    help='only the memory: the node\'s tree against m-explore\'s full run (about 3 min); '
+                         'prints the table, writes nothing')
     ap.add_argument('--out', default=os.path.join(HERE, 'results'))
     a = ap.parse_args()
+    if a.memory_only:
+        return memory_only(a)
     os.makedirs(a.out, exist_ok=True)
     t_all = time.time()
     peer_ok, note = (False, 'm-explore not measured (--no-peer)') if a.no_peer else peer.available()
@@ -126,6 +181,9 @@ def main():
         pairs = [list(p) for p in itertools.combinations(range(min(n, 3)), 2)]
         t0 = time.time()
         ours = run_ours(paths, truth, reps, pairs, root, cycles)
+        mem = memory_ours(paths, root, cycles)
+        ours.update({'memory': mem, 'rss_self_mb': mem['self_hwm_mb'],
+                     'rss_mb': mem['unique_mb'] if mem['unique_mb'] is not None else mem['pss_mb']})
         t_ours = time.time() - t0
         p = {}
         if pr is not None:
@@ -148,14 +206,19 @@ def main():
         print('.. %-16s ours: cold %7.0f ms (%.0f s)   m-explore: %s ms (%s s)' % (
             name, ours['cold_ms'], t_ours, report._f(p.get('estimate_ms')), report._f(p.get('bench_s'))),
             flush=True)
-    total = time.time() - t_all
     text = report.rows_table(rows, note)
     print(text)
+    soak = None
+    if not (a.quick or a.no_soak):
+        soak = run_soak(a.out, a.no_peer)
+        print('\n' + soak['text'])
+    total = time.time() - t_all
     mach = report.machine()
     print('\nrun_bench took %.0f s on %d cores (%s, %s MB RAM)' % (total, mach['nproc'], mach['cpu_model'],
                                                                   mach['mem_total_mb']))
     result = {'machine': mach, 'total_s': total, 'peer_measured': peer_ok, 'peer_note': note,
-              'tolerance': {'m': report.TOL_M, 'deg': report.TOL_DEG}, 'rows': rows, 'table': text}
+              'tolerance': {'m': report.TOL_M, 'deg': report.TOL_DEG}, 'rows': rows, 'table': text,
+              'soak': soak}
     with open(os.path.join(a.out, 'bench.json'), 'w') as f:
         json.dump(result, f, indent=1)
     try:

@@ -136,14 +136,17 @@ def _at_one_scale(config: MergeConfig, pa: PairInput, ch: PairInput) -> Tuple[Fe
 
 
 def _derived(what: str, p: PairInput, make):
-    """``make(p)``, cached per (merger, robot, map version, resolution) in this process."""
-    key = (what, p.owner, p.name, p.version, p.resolution)
+    """``make(p)``, cached per (merger, robot, resolution) in this process for the map's latest
+    version only: maps that grow all the time would otherwise leave every older version's wall
+    masks here until the cache's bound."""
+    key = (what, p.owner, p.name, p.resolution)
     v = _DERIVED.get(key)
-    if v is None:
+    if v is None or v[0] != p.version:
         if len(_DERIVED) > 256:
             _DERIVED.clear()
-        v = _DERIVED[key] = make(p)
-    return v
+        _DERIVED.pop(key, None)   # the old version freed before the new one is made
+        v = _DERIVED[key] = (p.version, make(p))
+    return v[1]
 
 
 def _known(p: PairInput) -> tuple:

@@ -1,12 +1,20 @@
 """Steps (1)-(4) of many pairs in worker processes, and what a merger derives once per map.
 
 Processes, not threads: estimation is partly pure Python, and in threads it would hold the GIL
-that the node's /map and TF timers need. One pool serves every merger of a process.
+that the node's /map and TF timers need (and two threads ran no faster than one: the GIL).
+One pool serves every merger of a process.
+
+The workers are forked from the process while it has no other thread (:func:`start_pool`, which
+the node calls before ``rospy.init_node``): they share the process's memory, its imports (OpenCV,
+numpy) above all, page by page until written. Workers started later, from a process running
+threads, come from a 'forkserver' that imported the estimation's modules once for all of them
+(forking a threaded process could copy a lock held by another thread).
 """
 from __future__ import annotations
 
 import itertools
 import os
+import time
 import zlib
 from concurrent.futures.process import BrokenProcessPool
 from typing import TYPE_CHECKING, Dict, List, Tuple
@@ -106,7 +114,7 @@ class PairWorkers:
             return self.map(align_pair, [c] * len(todo), [inputs[a] for a, _ in todo],
                             [inputs[b] for _, b in todo], [seeds[ab] for ab in todo])
         from concurrent.futures import as_completed
-        waiting = {pool.submit(compute_features, c, self.crop(m)[0]): m for m in stale}
+        waiting = {pool.submit(_task, compute_features, c, self.crop(m)[0]): m for m in stale}
         ready = set(maps) - {m.name for m in stale}
         queued: Dict[Tuple[str, str], object] = {}
         inputs: Dict[str, PairInput] = {}
@@ -117,7 +125,7 @@ class PairWorkers:
                     for n in ab:
                         if n not in inputs:
                             inputs[n] = self.input(maps[n])
-                    queued[ab] = pool.submit(align_pair, c, inputs[ab[0]], inputs[ab[1]], seeds[ab])
+                    queued[ab] = pool.submit(_task, align_pair, c, inputs[ab[0]], inputs[ab[1]], seeds[ab])
 
         submit_ready()
         for fut in as_completed(waiting):
@@ -133,24 +141,74 @@ class PairWorkers:
         if pool is None:
             return list(map(fn, *iterables))
         try:
-            return list(pool.map(fn, *iterables))
+            return list(pool.map(_task, itertools.repeat(fn), *iterables))
         except BrokenProcessPool:
             _discard_pool()
             raise
 
 
+def _task(fn, *args):
+    """``fn(*args)`` in a worker, its end noted for :func:`_trim_when_idle`."""
+    global _BUSY, _LAST
+    _BUSY = True
+    try:
+        return fn(*args)
+    finally:
+        _BUSY, _LAST = False, time.monotonic()
+
+
+_BUSY = False
+_LAST = 0.0
+IDLE_TRIM_S = 1.0
+
+
+def _trim_when_idle() -> None:
+    """Hand the memory a worker freed back to the system once it has been idle a second. glibc
+    keeps freed heap memory (and raises its mmap threshold after a big array is freed, so later
+    big arrays come from the heap too): a worker would hold its largest task's working set for
+    good. Not after every task: the next task would fault all of it in again (a third slower)."""
+    import ctypes
+    try:
+        libc = ctypes.CDLL(None)
+        trim = libc.malloc_trim   # glibc only
+    except (OSError, AttributeError):
+        return
+    done = _LAST
+    while True:
+        time.sleep(IDLE_TRIM_S / 2)
+        last = _LAST
+        if not _BUSY and last != done and time.monotonic() - last >= IDLE_TRIM_S:
+            trim(0)
+            done = last
+
+
 def _worker_init() -> None:
     """One OpenCV thread and one BLAS thread per worker: the pool already keeps every core
     busy, and the libraries' own threads on top of it only contend (two workers running two
-    threads each are slower than two workers with one each).
-    Ctrl-C (roslaunch's SIGINT to the process group) is the parent's to handle: a worker
-    interrupted while waiting for work only printed a KeyboardInterrupt traceback; it ends
-    when the parent shuts the pool down, or when the parent is gone (its queue closes)."""
+    threads each are slower than two workers with one each). A worker ignores SIGINT (Ctrl-C
+    reaches the whole process group: the node, not its workers, decides when they stop) and
+    dies with the process that started it, which a forked worker would otherwise outlive,
+    blocked on a queue whose other end it holds itself."""
     import signal
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _die_with_parent()
+    import threading
+    threading.Thread(target=_trim_when_idle, name='trim', daemon=True).start()
     import cv2
-    cv2.setNumThreads(1)
+    if cv2.getNumThreads() != 1:   # (a forked worker is on one thread already: see start_pool)
+        cv2.setNumThreads(1)
     _one_blas_thread()
+
+
+def _die_with_parent() -> None:
+    """SIGKILL this process when its parent exits (Linux's PR_SET_PDEATHSIG; elsewhere nothing)."""
+    import ctypes
+    import signal
+    try:
+        libc = ctypes.CDLL(None)
+        libc.prctl(1, signal.SIGKILL)   # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
 
 
 def _one_blas_thread() -> None:
@@ -179,19 +237,51 @@ def _discard_pool() -> None:
 
 
 def _pool(workers: int):
-    """The process pool shared by every merger in this process (None: work inline).
-
-    'forkserver' starts clean workers that do not inherit the ROS node's threads."""
+    """The process pool shared by every merger in this process (None: work inline)."""
     global _POOL, _POOL_SIZE
     n = workers or os.cpu_count() or 1
-    if n <= 1:
-        return None
-    if _POOL is None or _POOL_SIZE != n:
-        import multiprocessing
-        from concurrent.futures import ProcessPoolExecutor
-        if _POOL is not None:
-            _POOL.shutdown(wait=False)
-        _POOL = ProcessPoolExecutor(max_workers=n, mp_context=multiprocessing.get_context('forkserver'),
-                                    initializer=_worker_init)
-        _POOL_SIZE = n
+    if (n <= 1 and _POOL is not None) or (n > 1 and (_POOL is None or _POOL_SIZE != n)):
+        start_pool(n)   # (started early with the default size, then configured otherwise)
     return _POOL
+
+
+def start_pool(workers: int = 0) -> None:
+    """Start the worker pool now (``workers`` as :attr:`MergeConfig.workers`: 0 = one per core).
+
+    Called while the process runs no other thread (the node: before ``rospy.init_node``), the
+    workers are forked from it and share its pages: its imports cost the machine once, not once
+    per worker. Otherwise they come from a 'forkserver' that has imported the estimation's
+    modules, so that at least the workers share those."""
+    global _POOL, _POOL_SIZE
+    import multiprocessing
+    import threading
+    from concurrent.futures import ProcessPoolExecutor
+    n = workers or os.cpu_count() or 1
+    if _POOL is not None:
+        # waiting for the old workers (idle: a pool is replaced only when the configured size
+        # differs from the one started early); Python 3.8's executor left behind with wait=False
+        # can hang the interpreter's exit
+        _POOL.shutdown(wait=True)
+        _POOL, _POOL_SIZE = None, 0
+    if n <= 1:
+        return
+    if threading.active_count() == 1 and 'fork' in multiprocessing.get_all_start_methods():
+        ctx = multiprocessing.get_context('fork')
+    else:
+        ctx = multiprocessing.get_context('forkserver')
+        ctx.set_forkserver_preload([__name__.rsplit('.', 1)[0] + '.pair'])
+    pool = ProcessPoolExecutor(max_workers=n, mp_context=ctx, initializer=_worker_init)
+    if ctx.get_start_method() == 'fork':
+        # Every worker forked now, before this process starts a thread (the pool's own thread
+        # starts with its first task: Python forks all of a 'fork' pool's workers then), and
+        # with OpenCV on one thread meanwhile: OpenCV's own thread pool, once started (a warp
+        # before), would be copied without its threads, and a worker changing its thread count
+        # would wait for them for ever (seen with OpenCV 4.2's pthreads pool).
+        import cv2
+        threads = cv2.getNumThreads()
+        cv2.setNumThreads(1)
+        try:
+            pool.submit(int).result()
+        finally:
+            cv2.setNumThreads(threads)
+    _POOL, _POOL_SIZE = pool, n

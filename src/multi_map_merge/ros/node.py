@@ -25,6 +25,7 @@ from ..core.grid import Grid, GridError, apply_update, same_grid
 from ..core.merger import MapMerger
 from ..core.state import load_state, save_state
 from ..core.transforms import se2, xyyaw
+from ..core.workers import start_pool
 from .convert import NumpyGrid, NumpyGridUpdate, grid_from_msg, grid_to_msg, metadata, quaternion_yaw, transform_msg
 from .diagnostics import node_diagnostic, robot_diagnostic
 from .markers import markers_key, markers_msg
@@ -474,6 +475,9 @@ class MergeNode:
 
 
 def run_merge_node() -> None:
+    # the estimation workers forked before rospy starts its threads: they share the node's
+    # memory (core/workers.py); a ~workers other than the default restarts them
+    start_pool(0)
     rospy.init_node('map_merge')
     MergeNode(load_config())
     rospy.spin()

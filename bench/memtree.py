@@ -1,0 +1,196 @@
+"""Memory of a process tree, each physical page counted once (what the tree costs the machine).
+
+A process and its worker processes share pages: the libraries' code (file pages), and, for
+workers forked from a process that had already imported them, the imports' own memory
+(copy-on-write). Summing each process's RSS counts those pages once per process (an upper
+bound); summing PSS divides pages shared with processes outside the tree too (other Python
+processes that load OpenCV make ours look smaller). Counted here instead: the union of the
+physical pages mapped by the tree's processes, read from ``/proc/PID/pagemap`` (page frame
+numbers; needs CAP_SYS_ADMIN, i.e. root). For a single process this is its RSS, so it compares
+with m-explore's ``ru_maxrss``. Without root the union is unknown: ``unique_mb`` is None and
+the sum of PSS is given instead (``pss_mb``), with ``rss_sum_mb`` as the upper bound.
+
+    python3 bench/memtree.py PID [PID...]     -> one JSON line: the tree of each PID, now
+
+:func:`watch` runs a command and samples its tree from this process (the measuring is no part of
+what is measured: reading pagemap costs the reader a few MB of buffers).
+"""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+
+PAGE = os.sysconf('SC_PAGE_SIZE')
+_PFN_MASK = np.uint64((1 << 55) - 1)
+_PRESENT = np.uint64(1 << 63)
+
+
+def children(pid: int) -> list:
+    """Every descendant of ``pid`` (from /proc/*/stat's parent ids)."""
+    parent = {}
+    for d in os.listdir('/proc'):
+        if d.isdigit():
+            try:
+                with open('/proc/%s/stat' % d) as f:
+                    s = f.read()
+                parent[int(d)] = int(s[s.rindex(')') + 2:].split()[1])
+            except (OSError, ValueError, IndexError):
+                pass
+    out, todo = [], [pid]
+    while todo:
+        p = todo.pop()
+        kids = [c for c, pp in parent.items() if pp == p]
+        out += kids
+        todo += kids
+    return out
+
+
+def tree(pids) -> list:
+    """The given processes and all their descendants."""
+    out = []
+    for p in pids:
+        out += [p] + children(p)
+    return sorted(set(out))
+
+
+def _status(pid: int, key: str) -> int:
+    """A figure of /proc/PID/status (kB for the memory ones)."""
+    with open('/proc/%d/status' % pid) as f:
+        for line in f:
+            if line.startswith(key + ':'):
+                return int(line.split()[1])
+    return 0
+
+
+def _rollup(pid: int, key: str) -> float:
+    with open('/proc/%d/smaps_rollup' % pid) as f:
+        for line in f:
+            if line.startswith(key + ':'):
+                return int(line.split()[1]) / 1024.0
+    return 0.0
+
+
+def frames(pid: int):
+    """The page frame numbers of ``pid``'s resident pages (None without permission)."""
+    out = []
+    with open('/proc/%d/maps' % pid) as m, open('/proc/%d/pagemap' % pid, 'rb', buffering=0) as pm:
+        fd = pm.fileno()
+        for line in m:
+            a, b = line.split(None, 1)[0].split('-')
+            lo, hi = int(a, 16) // PAGE, int(b, 16) // PAGE
+            if 'vsyscall' in line:
+                continue
+            try:
+                buf = os.pread(fd, (hi - lo) * 8, lo * 8)
+            except OSError:
+                continue
+            v = np.frombuffer(buf, np.uint64)
+            v = v[(v & _PRESENT) != 0] & _PFN_MASK
+            if v.size:
+                out.append(v)
+    f = np.concatenate(out) if out else np.zeros(0, np.uint64)
+    if f.size and not f.any():
+        return None       # no CAP_SYS_ADMIN: the kernel reports frame 0 for every page
+    return f
+
+
+def measure(pids) -> dict:
+    """Now: the tree of ``pids``: unique MB (pages counted once; None without root), the sums of
+    RSS and PSS, each process's RSS and peak RSS (VmHWM), and its threads."""
+    procs = {}
+    union = []
+    unique_ok = True
+    for p in tree(pids):
+        try:
+            procs[p] = {'rss_mb': _status(p, 'VmRSS') / 1024.0, 'hwm_mb': _status(p, 'VmHWM') / 1024.0,
+                        'pss_mb': _rollup(p, 'Pss'), 'threads': _status(p, 'Threads')}
+            f = frames(p) if unique_ok else None
+        except (OSError, ValueError):
+            procs.pop(p, None)
+            continue
+        if f is None:
+            unique_ok = False
+        else:
+            union.append(f)
+    unique = (np.unique(np.concatenate(union)).size * PAGE / 2.0 ** 20) if unique_ok and union else None
+    return {'unique_mb': unique, 'rss_sum_mb': sum(v['rss_mb'] for v in procs.values()),
+            'pss_mb': sum(v['pss_mb'] for v in procs.values()),
+            'hwm_sum_mb': sum(v['hwm_mb'] for v in procs.values()),
+            'processes': len(procs), 'threads': sum(v['threads'] for v in procs.values()), 'procs': procs}
+
+
+class Sampler:
+    """Samples :func:`measure` of a tree in a thread, every ``period`` seconds, keeping the
+    largest figures seen (a sampled peak: a spike between two samples is missed; the sum of the
+    processes' VmHWM bounds it from above)."""
+
+    def __init__(self, pids, period: float = 0.05):
+        self.pids, self.period = list(pids), period
+        self.peak = {}
+        self.samples = 0
+        self._stop = threading.Event()
+        self._t = threading.Thread(target=self._run, daemon=True)
+
+    def _run(self):
+        while not self._stop.is_set():
+            self.sample()
+            self._stop.wait(self.period)
+
+    def sample(self) -> dict:
+        m = measure(self.pids)
+        self.samples += 1
+        for k in ('unique_mb', 'rss_sum_mb', 'pss_mb', 'hwm_sum_mb', 'processes'):
+            if m[k] is not None:
+                self.peak[k] = max(self.peak.get(k, 0), m[k])
+        return m
+
+    def __enter__(self):
+        self._t.start()
+        return self
+
+    def __exit__(self, *exc):
+        self._stop.set()
+        self._t.join()
+        self.sample()
+
+
+def watch(cmd, period: float = 0.02, env=None) -> dict:
+    """Run ``cmd`` (a process that prints one JSON line when its work is done, then waits for
+    its stdin to close) and sample its tree meanwhile. Returns that line's figures plus the
+    peaks: ``unique_mb`` (sampled; None without root), ``hwm_sum_mb`` (every process's peak RSS,
+    summed: an upper bound), ``rss_sum_mb``, ``pss_mb``, ``processes``, ``self_hwm_mb`` (the
+    command's own process) and ``samples``."""
+    p = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                         text=True, env=env)
+    s = Sampler([p.pid], period)
+    try:
+        with s:
+            line = p.stdout.readline()
+        out = json.loads(line) if line.strip() else {}
+        end = measure([p.pid])
+    finally:
+        p.stdin.close()
+        err = p.stderr.read()
+        p.wait()
+    if not line.strip():
+        raise RuntimeError('%s stopped: %s' % (' '.join(cmd[:3]), err[-1000:]))
+    out.update({k: s.peak.get(k) for k in ('unique_mb', 'hwm_sum_mb', 'rss_sum_mb', 'pss_mb', 'processes')})
+    out.update({'self_hwm_mb': end['procs'][p.pid]['hwm_mb'], 'samples': s.samples, 'threads': end['threads'],
+                'end_unique_mb': end['unique_mb']})
+    if out['unique_mb'] is None:
+        out['unique_note'] = 'pages could not be counted once (pagemap needs root): pss_mb instead'
+    return out
+
+
+if __name__ == '__main__':
+    m = measure([int(p) for p in sys.argv[1:]] or [os.getpid()])
+    t = time.perf_counter()
+    measure([int(p) for p in sys.argv[1:]] or [os.getpid()])
+    m['measure_s'] = time.perf_counter() - t
+    print(json.dumps(m))

@@ -1,0 +1,80 @@
+"""How the estimation workers are started: forked from a process that runs no other thread
+(sharing its memory), from a forkserver otherwise; the same estimates either way."""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+SRC = os.path.join(os.path.dirname(os.path.abspath(__file__)), '..', '..', '..', 'src')
+
+SCRIPT = r'''
+import threading, time
+import numpy as np
+from multi_map_merge.core import workers
+from multi_map_merge.core.config import MergeConfig
+from multi_map_merge.core.pair import compute_features
+
+def main():
+    rng = np.random.default_rng(1)
+    levels = np.where(rng.random((120, 160)) < 0.1, 2, 1).astype(np.uint8)
+    inline = compute_features(MergeConfig(), levels)
+    methods = []
+    workers.start_pool(2)
+    methods.append(workers._POOL._mp_context.get_start_method())
+    a = workers._POOL.submit(workers._task, compute_features, MergeConfig(), levels).result()
+    t = threading.Thread(target=time.sleep, args=(5,), daemon=True)
+    t.start()
+    workers.start_pool(3)      # a thread runs now: no fork
+    methods.append(workers._POOL._mp_context.get_start_method())
+    b = workers._POOL.submit(workers._task, compute_features, MergeConfig(), levels).result()
+    workers.start_pool(1)      # inline: no pool
+    same = all(np.array_equal(x.points, inline.points) for x in (a, b))
+    print(methods, workers._POOL is None, same)
+
+if __name__ == '__main__':
+    main()
+'''
+
+
+def test_workers_forked_when_single_threaded_else_forkserver(tmp_path):
+    script = tmp_path / 'pool.py'
+    script.write_text(SCRIPT)
+    env = dict(os.environ, PYTHONPATH=os.path.abspath(SRC) + os.pathsep + os.environ.get('PYTHONPATH', ''))
+    out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, env=env, timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip().splitlines()[-1] == "['fork', 'forkserver'] True True"
+
+
+SCRIPT_AFTER_WARPS = r'''
+import cv2
+import numpy as np
+from multi_map_merge.core import workers
+from multi_map_merge.core.config import MergeConfig
+from multi_map_merge.core.pair import compute_features
+
+def main():
+    cv2.setNumThreads(2)
+    img = np.zeros((600, 600), np.uint8)
+    for _ in range(5):      # OpenCV's thread pool started in this process
+        cv2.warpAffine(img, np.eye(2, 3), (600, 600))
+    workers.start_pool(2)
+    levels = np.where(np.random.default_rng(2).random((120, 160)) < 0.1, 2, 1).astype(np.uint8)
+    fs = [f.result(timeout=60) for f in [workers._POOL.submit(workers._task, compute_features, MergeConfig(), levels)
+                                         for _ in range(4)]]
+    print(workers._POOL._mp_context.get_start_method(), len(fs), cv2.getNumThreads())
+
+if __name__ == '__main__':
+    main()
+'''
+
+
+def test_workers_forked_after_opencv_started_its_threads(tmp_path):
+    """A pool forked after OpenCV's own thread pool ran: the workers must not wait for threads
+    that were not copied (OpenCV 4.2's pthreads pool hung a worker in setNumThreads)."""
+    script = tmp_path / 'after_warps.py'
+    script.write_text(SCRIPT_AFTER_WARPS)
+    env = dict(os.environ, PYTHONPATH=os.path.abspath(SRC) + os.pathsep + os.environ.get('PYTHONPATH', ''))
+    out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, env=env, timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip().splitlines()[-1] == 'fork 4 2'
