@@ -60,9 +60,12 @@ def cmdline(pid):
 
 
 def worker_pids(node):
-    """The estimation workers of the node: the children of its multiprocessing forkserver."""
-    servers = [p for p in children(node) if 'forkserver' in cmdline(p)]
-    return [w for s in servers for w in children(s)]
+    """The estimation workers of the node: its children forked at its start (core/workers.py's
+    start_pool), or those of its multiprocessing forkserver where the pool was started later."""
+    kids = children(node)
+    servers = [p for p in kids if 'forkserver' in cmdline(p)]
+    forked = [p for p in kids if p not in servers and 'resource_tracker' not in cmdline(p)]
+    return forked + [w for s in servers for w in children(s)]
 
 
 class TestNodeStatus(PiecesTest):
