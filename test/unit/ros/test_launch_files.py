@@ -134,6 +134,19 @@ def test_map_merge_launch_loads_config():
     check_executables(cfg)
 
 
+def test_reference_robot_of_the_config_yaml_is_kept_unless_the_arg_is_given(tmp_path):
+    """A user's config YAML that names the reference robot is not overwritten by the launch
+    file's empty default arg; the arg, when given, wins."""
+    with open(os.path.join(REPO, 'config', 'map_merge.yaml')) as f:
+        mine = dict(yaml.safe_load(f), reference_robot='tb3_3')
+    cfg_file = tmp_path / 'mine.yaml'
+    cfg_file.write_text(yaml.safe_dump(mine))
+    cfg = load('map_merge.launch', 'config:=%s' % cfg_file)
+    assert param(cfg, '/map_merge/reference_robot') == 'tb3_3'
+    cfg = load('map_merge.launch', 'config:=%s' % cfg_file, 'reference_robot:=tb3_1')
+    assert param(cfg, '/map_merge/reference_robot') == 'tb3_1'
+
+
 def test_gmapping_robot_include():
     cfg = load(GMAPPING, 'ns:=tb3_7')
     check_gmapping(cfg, ['tb3_7'])
