@@ -94,7 +94,7 @@ def pose_with_covariance_msg(T: np.ndarray, cov: Optional[np.ndarray], frame: st
                              exact: bool = False) -> PoseWithCovarianceStamped:
     """PoseWithCovarianceStamped of the 3x3 pose ``T`` (a robot's map frame in ``frame``) and its
     3x3 covariance of (x, y, yaw) (metres^2, radians^2), placed at rows/columns 0, 1, 5 of the
-    6x6 (x, y, z, roll, pitch, yaw), cross terms included. z, roll and pitch get variance 0: a
+    6x6 (x, y, z, roll, pitch, yaw), cross terms included (symmetrised). z, roll and pitch get variance 0: a
     map frame lies in the merged frame's plane by construction (its TF says z = roll = pitch =
     0), the platform constraint robot_localization's docs fuse as an exact 0, and what amcl's
     ``amcl_pose`` leaves there. ``cov`` None: ``exact`` (the reference, whose map frame is the
@@ -108,7 +108,9 @@ def pose_with_covariance_msg(T: np.ndarray, cov: Optional[np.ndarray], frame: st
     set_yaw(m.pose.pose.orientation, yaw)
     c = np.zeros((6, 6))
     if cov is not None:
-        c[np.ix_(POSE_COV_INDEX, POSE_COV_INDEX)] = np.asarray(cov, float).reshape(3, 3)
+        c3 = np.asarray(cov, float).reshape(3, 3)
+        # the core's covariance is a numerical inverse, symmetric only to its last bits
+        c[np.ix_(POSE_COV_INDEX, POSE_COV_INDEX)] = (c3 + c3.T) / 2.0
     elif not exact:
         c[0, 0] = UNKNOWN_COVARIANCE
     m.pose.covariance = [float(v) for v in c.ravel()]

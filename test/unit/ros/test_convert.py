@@ -67,6 +67,9 @@ def test_pose_with_covariance_in_ros_order():
             assert c[names.index(a), names.index(b)] == COV[i, j], (a, b)
     assert not c[2:5].any() and not c[:, 2:5].any()            # z, roll, pitch: 0
     assert np.array_equal(covariance_of(m), COV)
+    skew = COV + np.array([[0, 1e-12, 0], [0, 0, 0], [0, 0, 0]])   # a numerical inverse's last bits
+    c = np.array(pose_with_covariance_msg(np.eye(3), skew, 'map', rospy.Time(0)).pose.covariance).reshape(6, 6)
+    assert np.array_equal(c, c.T) and c[0, 1] == pytest.approx(COV[0, 1] + 0.5e-12, abs=1e-18)
 
 
 def test_pose_covariance_unknown_or_exact():
