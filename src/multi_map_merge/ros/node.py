@@ -67,8 +67,9 @@ class MergeNode:
     Subscribes ``/<robot>/<map_topic>`` for every discovered (or listed) robot, runs estimation
     in a worker thread at ``estimation_rate``, composites in another, publishes ``/map``
     (latched) when the merged map changed (checked at ``merge_rate``), broadcasts
-    ``merged_map_frame -> <robot>/map`` at ``tf_rate``, and publishes its own and every
-    robot's state on ``/diagnostics`` (``diagnostic_updater``).
+    ``merged_map_frame -> <robot>/map`` at ``tf_rate`` (and, with its covariance, on
+    ``/<robot>/map_merge/pose`` when it changes), and publishes its own and every robot's
+    state on ``/diagnostics`` (``diagnostic_updater``).
     """
 
     def __init__(self, config: MergeConfig):
