@@ -20,6 +20,7 @@ import time
 import numpy as np
 import rospy
 import rostest
+from geometry_msgs.msg import PoseWithCovarianceStamped
 from rostest_helpers import (
     PiecesTest,
     expected_canvas,
@@ -33,6 +34,7 @@ from rostest_helpers import (
 from visualization_msgs.msg import Marker, MarkerArray
 
 from multi_map_merge.core.transforms import pose_distance, se2
+from multi_map_merge.ros.convert import covariance_of, quaternion_yaw
 from multi_map_merge.ros.tools import revealed
 
 PKG = 'multi_map_merge'
@@ -220,6 +222,59 @@ class TestMergeNode(PiecesTest):
             for end, robot in zip(ends, (a, b)):
                 self.assertAlmostEqual(end[0], origin[robot][0], places=6)
                 self.assertAlmostEqual(end[1], origin[robot][1], places=6)
+
+        ellipses = [m for m in arr.markers if m.ns == 'robot_ellipses']
+        self.assertEqual(len(ellipses), len(ROBOTS) - 1, 'a 2-sigma ellipse per merged robot but the reference')
+        for e in ellipses:
+            self.assertEqual(e.type, Marker.CYLINDER)
+            self.assertIn((e.pose.position.x, e.pose.position.y), list(origin.values()))
+
+    def test_6_pose_with_covariance_per_robot(self):
+        """/<robot>/map_merge/pose (latched): the pose of the robot's map frame in the merged
+        frame, equal to the TF map -> <robot>/map; its covariance the merger's (its position
+        sigma and weak flag as /diagnostics report them, reported after the pose arrived),
+        positive definite in x, y, yaw, z/roll/pitch 0; the reference at identity, covariance 0."""
+        self.assertIsNotNone(self.t_full, 'test_1 did not run')
+        got = {}
+        subs = [rospy.Subscriber('/%s/map_merge/pose' % r, PoseWithCovarianceStamped,
+                                 lambda m, r=r: got.__setitem__(r, (m, time.time())), queue_size=5)
+                for r in ROBOTS]
+        self.assertTrue(wait_until(lambda: len(got) == len(ROBOTS), 10.0), 'poses of %s only' % sorted(got))
+        max_sigma = rospy.get_param('/map_merge/max_position_sigma')
+        for k, r in enumerate(ROBOTS):
+            msg, t_msg = got[r]
+            self.assertEqual(msg.header.frame_id, 'map')
+            p = msg.pose.pose
+            P = se2(p.position.x, p.position.y, quaternion_yaw(p.orientation))
+            T = lookup(self.buf, 'map', '%s/map' % r, 5.0)
+            self.assertIsNotNone(T, 'no TF map -> %s/map' % r)
+            d, da = pose_distance(P, T)
+            c6 = np.array(msg.pose.covariance).reshape(6, 6)
+            cov = covariance_of(msg)
+            st = wait_until(lambda r=r, t=t_msg: self.listen.status(r, t + 0.01), 5.0)
+            self.assertTrue(st, 'no /diagnostics of %s after its pose' % r)
+            kv = st[1]
+            print('%s: pose %s, TF %s: %.6f m %.6f deg apart; cov diag %s; diagnostics sigma_position %s weak %s'
+                  % (r, fmt_pose(P), fmt_pose(T), d, math.degrees(da), np.diag(c6), kv.get('sigma_position'),
+                     kv.get('weak')))
+            self.assertLess(d, 1e-4)
+            self.assertLess(da, 1e-4)
+            self.assertFalse(c6[2:5].any() or c6[:, 2:5].any(), 'z, roll, pitch must be 0: %s' % c6)
+            self.assertTrue(np.array_equal(c6, c6.T))
+            if k == 0:
+                self.assertLess(pose_distance(P, np.eye(3))[0], 1e-9)
+                self.assertFalse(c6.any(), 'the reference is exact: %s' % c6)
+                self.assertEqual((kv['sigma_position'], kv['weak']), ('0.0000', 'false'))
+                continue
+            self.assertIsNotNone(cov, '%s: covariance unknown (-1)' % r)
+            self.assertGreater(np.linalg.eigvalsh(cov)[0], 0.0, '%s: not positive definite: %s' % (r, cov))
+            sigma = math.sqrt(np.linalg.eigvalsh(cov[:2, :2])[-1])
+            self.assertAlmostEqual(sigma, float(kv['sigma_position']), delta=6e-5)
+            self.assertEqual(kv['weak'], str(2 * sigma > max_sigma).lower())
+            err = pose_distance(P, self.T_true[k])[0]
+            print('%s: true pose error %.4f m, %.1f sigma' % (r, err, err / sigma))
+        for s in subs:
+            s.unregister()
 
 
 if __name__ == '__main__':

@@ -12,18 +12,34 @@ from typing import Dict, List, Optional
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 
 from ..core.merger import RobotStatus
+from ..core.placement import PRIOR, Placement
 from ..core.state import placement_dict
 
 # how a placement's numbers (:func:`core.state.placement_dict`) are written on /diagnostics
-FORMAT = {'inlier_ratio': '%.3f', 'agreement': '%.3f', 'inliers': '%d', 'x': '%.3f', 'y': '%.3f', 'yaw': '%.4f'}
+FORMAT = {'inlier_ratio': '%.3f', 'agreement': '%.3f', 'inliers': '%d', 'x': '%.3f', 'y': '%.3f', 'yaw': '%.4f',
+          'sigma_position': '%.4f'}
+
+
+def weak_reason(pl: Placement, max_position_sigma: float) -> str:
+    """Why a weakly pinned placement is weak, for people ('' when it is not weak)."""
+    if not pl.weak:
+        return ''
+    if pl.via == PRIOR:
+        return 'placed at its prior, no link pins it'
+    d = placement_dict(pl)
+    if 'sigma_position' not in d:
+        return 'its covariance is unknown (a link on its chain has none)'
+    return '2-sigma %.3f m > max_position_sigma %.3f m' % (2.0 * d['sigma_position'], max_position_sigma)
 
 
 def robot_diagnostic(robot: str, st: RobotStatus, gone: bool, now: float,
-                     out: Optional[DiagnosticStatus] = None) -> DiagnosticStatus:
-    """One robot's status: merged or not, via which robot, the placement and its quality, the
-    last pair attempt, input errors, and whether its map publisher is ``gone``. The hardware id
-    is the robot (readers key the robots' statuses by it). ``now``: wall seconds, for the
-    placement's age."""
+                     out: Optional[DiagnosticStatus] = None, max_position_sigma: float = 0.1) -> DiagnosticStatus:
+    """One robot's status: merged or not, via which robot, the placement, its quality and how
+    well it is pinned (``sigma_position``: metres, '0.0000' for the reference, '-' when unknown;
+    ``weak``), the last pair attempt, input errors, and whether its map publisher is ``gone``.
+    A merged robot weakly pinned (over ``max_position_sigma``, metres, or at its prior) is
+    WARN. The hardware id is the robot (readers key the robots' statuses by it). ``now``: wall
+    seconds, for the placement's age."""
     s = out if out is not None else DiagnosticStatus()
     s.hardware_id = robot
     kv = [('merged', str(st.merged).lower()), ('reference', str(st.reference).lower()),
@@ -33,6 +49,9 @@ def robot_diagnostic(robot: str, st: RobotStatus, gone: bool, now: float,
         d = placement_dict(st.placement)
         kv += [('via', d['via'] or '-'), ('chain', ' -> '.join(d['chain']))]
         kv += [(k, FORMAT[k] % d[k]) for k in ('inlier_ratio', 'agreement', 'inliers', 'x', 'y', 'yaw')]
+        sigma = 0.0 if st.reference else d.get('sigma_position')   # the reference is exact
+        kv += [('sigma_position', FORMAT['sigma_position'] % sigma if sigma is not None else '-'),
+               ('weak', str(d['weak']).lower())]
         kv += [('age_s', '%.1f' % (now - st.placement.stamp))]
     if st.last_attempt is not None:
         a = st.last_attempt
@@ -43,6 +62,10 @@ def robot_diagnostic(robot: str, st: RobotStatus, gone: bool, now: float,
         s.level, s.message = DiagnosticStatus.ERROR, 'input ignored: ' + st.error
     elif st.reference:
         s.level, s.message = DiagnosticStatus.OK, 'reference map'
+    elif st.merged and st.placement.weak:
+        s.level = DiagnosticStatus.WARN
+        s.message = 'merged via %s, weakly pinned: %s' % (st.placement.via,
+                                                          weak_reason(st.placement, max_position_sigma))
     elif st.merged:
         s.level, s.message = DiagnosticStatus.OK, 'merged via %s' % st.placement.via
     elif st.linked_to:
@@ -64,23 +87,27 @@ def node_diagnostic(status: Dict[str, RobotStatus], gone: Dict[str, bool], est_s
                     out: Optional[DiagnosticStatus] = None) -> DiagnosticStatus:
     """The node's own status. ERROR when the last estimation cycle raised ``est_error`` (its
     type and text in the message); else WARN naming the robots that vanished (no publisher of
-    their map), are not merged, or whose last input was refused; else OK. Values: the last
-    cycle's seconds (``last_estimation_s``), how many robots and how many merged, the last
-    error. The hardware id is left to the caller (the updater sets the node's)."""
+    their map), are not merged, are merged but weakly pinned, or whose last input was refused;
+    else OK. Values: the last cycle's seconds (``last_estimation_s``), how many robots and how
+    many merged, which are not merged, vanished or weakly pinned, the last error. The hardware
+    id is left to the caller (the updater sets the node's)."""
     s = out if out is not None else DiagnosticStatus()
     vanished = sorted(r for r, g in gone.items() if g)
     unmerged = sorted(r for r, st in status.items() if not st.merged)
+    weak = sorted(r for r, st in status.items() if st.merged and st.placement is not None and st.placement.weak)
     refused = sorted(r for r, st in status.items() if st.error)
     if est_error is not None:
         s.level = DiagnosticStatus.ERROR
         s.message = 'estimation failed: %s' % error_text(est_error)
-    elif vanished or unmerged or refused or not status:
+    elif vanished or unmerged or weak or refused or not status:
         s.level = DiagnosticStatus.WARN
         parts: List[str] = []
         if not status:
             parts.append('no robot map yet')
         if unmerged:
             parts.append('not merged: %s' % ', '.join(unmerged))
+        if weak:
+            parts.append('weakly pinned: %s' % ', '.join(weak))
         if vanished:
             parts.append('vanished: %s' % ', '.join(vanished))
         if refused:
@@ -94,6 +121,7 @@ def node_diagnostic(status: Dict[str, RobotStatus], gone: Dict[str, bool], est_s
                 KeyValue('merged', str(merged)),
                 KeyValue('not_merged', ' '.join(unmerged) or '-'),
                 KeyValue('vanished', ' '.join(vanished) or '-'),
+                KeyValue('weakly_pinned', ' '.join(weak) or '-'),
                 KeyValue('last_error', error_text(est_error) if est_error is not None else '-')]
     return s
 

@@ -1,11 +1,13 @@
 """Markers for rviz, as a plain function of the placements and the kept links (no node, no
 rospy): where every merged robot started (its map frame's origin) in the merged frame, labelled,
-and a line per kept link between two placed robots, coloured by how well it verified."""
+with its placement's 2-sigma position ellipse, and a line per kept link between two placed
+robots, coloured by how well it verified."""
 from __future__ import annotations
 
 import math
-from typing import Dict, Iterable, List, Tuple
+from typing import Dict, Iterable, List, Optional, Tuple
 
+import numpy as np
 from geometry_msgs.msg import Point, Quaternion
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
@@ -17,6 +19,8 @@ from ..core.transforms import xyyaw
 ARROW_M = 0.6      # length of a robot's arrow
 TEXT_M = 0.35      # height of the labels
 LINE_M = 0.05      # width of a link's line
+ELLIPSE_M = 0.01   # height of a position ellipse (a flat cylinder)
+ELLIPSE_SIGMAS = 2.0   # the ellipse's half-axes: this many standard deviations
 
 
 def link_colour(agreement: float, min_agreement: float) -> ColorRGBA:
@@ -24,6 +28,27 @@ def link_colour(agreement: float, min_agreement: float) -> ColorRGBA:
     span = max(1e-6, 1.0 - min_agreement)
     c = min(1.0, max(0.0, (agreement - min_agreement) / span))
     return ColorRGBA(1.0 - c, c, 0.0, 1.0)
+
+
+def ellipse_axes(cov: np.ndarray) -> Tuple[float, float, float]:
+    """(full length along the major axis, along the minor axis, angle of the major axis in
+    radians) of the 2-sigma ellipse of a 3x3 covariance's x, y block: half-axes of
+    ELLIPSE_SIGMAS * sqrt(eigenvalue), along the eigenvectors."""
+    w, v = np.linalg.eigh(np.asarray(cov, float)[:2, :2])
+    w = np.maximum(w, 0.0)
+    major, minor = (2.0 * ELLIPSE_SIGMAS * math.sqrt(w[1]), 2.0 * ELLIPSE_SIGMAS * math.sqrt(w[0]))
+    return major, minor, math.atan2(v[1, 1], v[0, 1])
+
+
+def _ellipse(frame: str, stamp, mid: int, x: float, y: float, cov: np.ndarray, weak: bool) -> Marker:
+    m = _marker(frame, stamp, 'robot_ellipses', mid, Marker.CYLINDER)
+    major, minor, angle = ellipse_axes(cov)
+    m.pose.position.x, m.pose.position.y = x, y
+    m.pose.orientation = Quaternion(0.0, 0.0, math.sin(angle / 2.0), math.cos(angle / 2.0))
+    # rviz draws a cylinder of diameter scale.x along its x axis: a degenerate axis still shows
+    m.scale.x, m.scale.y, m.scale.z = max(major, 1e-3), max(minor, 1e-3), ELLIPSE_M
+    m.color = ColorRGBA(1.0, 0.1, 0.1, 0.5) if weak else ColorRGBA(0.2, 0.8, 1.0, 0.35)
+    return m
 
 
 def _marker(frame: str, stamp, ns: str, mid: int, kind: int) -> Marker:
@@ -38,9 +63,11 @@ def markers_msg(placements: Dict[str, Placement], links: Iterable[Edge], frame: 
                 min_agreement: float) -> MarkerArray:
     """The whole marker set: first a DELETEALL (robots and links that are gone disappear), then
     per placed robot an arrow at its map frame's origin along its x axis (ns ``robots``) and its
-    name (ns ``robot_names``), and per kept link whose two robots are placed a line between
-    their origins (ns ``links``, :func:`link_colour`) labelled with its inlier ratio and
-    agreement (ns ``link_labels``). Ids are the robots' and links' ranks by name."""
+    name (ns ``robot_names``) and, when its placement has a covariance, its 2-sigma position
+    ellipse (ns ``robot_ellipses``, :func:`ellipse_axes`, red when weakly pinned); per kept link
+    whose two robots are placed a line between their origins (ns ``links``,
+    :func:`link_colour`) labelled with its inlier ratio and agreement (ns ``link_labels``). Ids
+    are the robots' and links' ranks by name."""
     arr = MarkerArray()
     clear = _marker(frame, stamp, '', 0, Marker.ARROW)
     clear.action = Marker.DELETEALL
@@ -62,6 +89,9 @@ def markers_msg(placements: Dict[str, Placement], links: Iterable[Edge], frame: 
         t.color = colour
         t.text = robot if pl.via else '%s (reference)' % robot
         arr.markers += [a, t]
+        cov: Optional[np.ndarray] = pl.cov
+        if cov is not None:
+            arr.markers.append(_ellipse(frame, stamp, i, x, y, cov, pl.weak))
     shown: List[Edge] = sorted((e for e in links if e.parent in where and e.child in where),
                                key=lambda e: (e.parent, e.child))
     for j, e in enumerate(shown):
@@ -81,5 +111,6 @@ def markers_msg(placements: Dict[str, Placement], links: Iterable[Edge], frame: 
 
 def markers_key(placements: Dict[str, Placement], links: Iterable[Edge]) -> tuple:
     """What the markers are drawn from: they are published again only when this changes."""
-    return (tuple(sorted((r, pl.T.tobytes(), pl.via) for r, pl in placements.items())),
+    return (tuple(sorted((r, pl.T.tobytes(), pl.via, None if pl.cov is None else np.asarray(pl.cov).tobytes(),
+                          pl.weak) for r, pl in placements.items())),
             tuple(sorted((e.parent, e.child, e.inlier_ratio, e.agreement) for e in links)))

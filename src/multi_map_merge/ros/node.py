@@ -26,7 +26,16 @@ from ..core.merger import MapMerger
 from ..core.state import load_state, save_state
 from ..core.transforms import se2, xyyaw
 from ..core.workers import start_pool
-from .convert import NumpyGrid, NumpyGridUpdate, grid_from_msg, grid_to_msg, metadata, quaternion_yaw, transform_msg
+from .convert import (
+    NumpyGrid,
+    NumpyGridUpdate,
+    grid_from_msg,
+    grid_to_msg,
+    metadata,
+    pose_with_covariance_msg,
+    quaternion_yaw,
+    transform_msg,
+)
 from .diagnostics import node_diagnostic, robot_diagnostic
 from .markers import markers_key, markers_msg
 from .params import resolve_params
@@ -58,8 +67,9 @@ class MergeNode:
     Subscribes ``/<robot>/<map_topic>`` for every discovered (or listed) robot, runs estimation
     in a worker thread at ``estimation_rate``, composites in another, publishes ``/map``
     (latched) when the merged map changed (checked at ``merge_rate``), broadcasts
-    ``merged_map_frame -> <robot>/map`` at ``tf_rate``, and publishes its own and every
-    robot's state on ``/diagnostics`` (``diagnostic_updater``).
+    ``merged_map_frame -> <robot>/map`` at ``tf_rate`` (and, with its covariance, on
+    ``/<robot>/map_merge/pose`` when it changes), and publishes its own and every robot's
+    state on ``/diagnostics`` (``diagnostic_updater``).
     """
 
     def __init__(self, config: MergeConfig):
@@ -77,6 +87,9 @@ class MergeNode:
         # rviz: where each robot started and the kept links (latched, sent when they change)
         self._markers_pub = rospy.Publisher('~markers', MarkerArray, queue_size=1, latch=True)
         self._markers_key = None
+        # /<robot>/map_merge/pose (latched, made as robots are placed) and what each last sent
+        self._pose_pubs: Dict[str, rospy.Publisher] = {}
+        self._pose_keys: Dict[str, tuple] = {}
         self._last_est = 0.0
         self._est_seconds = 0.0
         self._est_error: Optional[BaseException] = None   # what the last estimation cycle raised
@@ -113,6 +126,7 @@ class MergeNode:
         rospy.Timer(rospy.Duration(1.0 / config.discovery_rate), self._discover)
         rospy.Timer(rospy.Duration(1.0 / config.merge_rate), self._publish_map)
         rospy.Timer(rospy.Duration(1.0 / config.merge_rate), self._publish_markers)
+        rospy.Timer(rospy.Duration(1.0 / config.merge_rate), self._publish_poses)
         rospy.Timer(rospy.Duration(1.0 / config.tf_rate), self._publish_tf)
         rospy.Timer(rospy.Duration(0.2), self._update_diagnostics)
         self._worker = threading.Thread(target=self._estimation_loop, name='estimation', daemon=True)
@@ -422,6 +436,24 @@ class MergeNode:
                                               self.cfg.min_agreement))
         self._markers_key = key
 
+    def _publish_poses(self, _event) -> None:
+        """Per placed robot, its map frame's pose in the merged frame with the placement's
+        covariance on ``/<robot>/map_merge/pose`` (latched), sent when the placement or its
+        covariance changed. A robot no longer placed gets nothing new (its TF stops; /diagnostics
+        says it is not merged)."""
+        for robot, pl in self.merger.placements().items():
+            cov = pl.cov   # read once: the estimation thread sets it anew in place
+            key = (pl.T.tobytes(), None if cov is None else np.asarray(cov).tobytes(), pl.via)
+            if self._pose_keys.get(robot) == key:
+                continue
+            pub = self._pose_pubs.get(robot)
+            if pub is None:
+                pub = self._pose_pubs[robot] = rospy.Publisher(
+                    '/%s/map_merge/pose' % robot, PoseWithCovarianceStamped, queue_size=1, latch=True)
+            pub.publish(pose_with_covariance_msg(pl.T, cov, self.cfg.merged_map_frame, rospy.Time.now(),
+                                                 exact=not pl.via))
+            self._pose_keys[robot] = key
+
     def _publish_tf(self, _event) -> None:
         frames = self.merger.frames()
         now = rospy.Time.now()
@@ -452,7 +484,8 @@ class MergeNode:
             stat.summary(stat.WARN, 'no longer known')
             stat.hardware_id = robot
             return stat
-        return robot_diagnostic(robot, st, bool(self._gone.get(robot)), time.time(), stat)
+        return robot_diagnostic(robot, st, bool(self._gone.get(robot)), time.time(), stat,
+                                self.cfg.max_position_sigma)
 
     def _node_diagnostic(self, stat):
         return node_diagnostic(self.merger.status(), self._gone, self._est_seconds, self._est_error,

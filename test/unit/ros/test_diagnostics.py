@@ -123,3 +123,79 @@ def test_a_placement_on_diagnostics_reads_as_placement_dict(halves_merged):
         assert abs(float(b[k]) - d[k]) <= 1e-3, k
     assert diag['a']['message'] == 'reference map' and diag['a']['via'] == '-'
     assert diag['c']['message'].startswith('not merged') and 'via' not in diag['c']
+
+
+def pinned_team():
+    """Placements of a (reference), b and c pinned by the core (placement.pin) from links a-b,
+    a-c with covariances: b's link slides 8 cm (1 sigma) along x, c's is pinned to 1 cm."""
+    from multi_map_merge.core.config import MergeConfig
+    from multi_map_merge.core.links import Edge
+    from multi_map_merge.core.placement import pin
+    cfg = MergeConfig(max_position_sigma=0.1)
+    e_ab = Edge('a', 'b', se2(2.0, 1.0, 0.3), 0.5, 0.98, 40, 80, NOW, cov=np.diag([0.08 ** 2, 0.01 ** 2, 1e-6]))
+    e_ac = Edge('a', 'c', se2(-1.0, 3.0, -1.0), 0.5, 0.98, 40, 80, NOW, cov=np.diag([0.01 ** 2, 0.005 ** 2, 1e-6]))
+    pls = {'a': Placement(np.eye(3), 1.0, 1.0, 0, '', ('a',), NOW - 5.0),
+           'b': Placement(e_ab.T, 0.5, 0.98, 40, 'a', ('a', 'b'), NOW - 5.0),
+           'c': Placement(e_ac.T, 0.5, 0.98, 40, 'a', ('a', 'c'), NOW - 5.0)}
+    pin(cfg, pls, {('a', 'b'): e_ab, ('a', 'c'): e_ac}, 'a', False)
+    return {'a': RobotStatus(True, True, pls['a']),
+            'b': RobotStatus(True, False, pls['b'], linked_to=('a',)),
+            'c': RobotStatus(True, False, pls['c'], linked_to=('a',))}
+
+
+def test_a_weakly_pinned_robot_warns_with_its_2_sigma():
+    """sigma_position and weak on every placed robot's status, as the core computed them; a
+    robot whose 2-sigma position exceeds max_position_sigma is merged but WARN, saying by how
+    much; one well pinned stays OK; the reference is exact."""
+    from multi_map_merge.core.covariance import position_sigma
+    st = pinned_team()
+    b, c = st['b'].placement, st['c'].placement
+    assert b.weak and not c.weak and b.cov is not None and c.cov is not None
+    sb, sc = position_sigma(b.cov), position_sigma(c.cov)
+    assert abs(sb - 0.08) < 1e-3 and abs(sc - 0.01) < 1e-3     # a single link: its own covariance
+    s = robot_diagnostic('b', st['b'], False, NOW, max_position_sigma=0.1)
+    kv = values(s)
+    assert s.level == DiagnosticStatus.WARN
+    assert s.message == 'merged via a, weakly pinned: 2-sigma %.3f m > max_position_sigma 0.100 m' % (2 * sb)
+    assert (kv['merged'], kv['weak'], kv['sigma_position']) == ('true', 'true', '%.4f' % sb)
+    s = robot_diagnostic('c', st['c'], False, NOW, max_position_sigma=0.1)
+    assert (s.level, s.message) == (DiagnosticStatus.OK, 'merged via a')
+    assert (values(s)['weak'], values(s)['sigma_position']) == ('false', '%.4f' % sc)
+    s = robot_diagnostic('a', st['a'], False, NOW)
+    assert (s.level, values(s)['weak'], values(s)['sigma_position']) == (DiagnosticStatus.OK, 'false', '0.0000')
+
+
+def test_a_robot_at_its_prior_or_of_unknown_covariance_is_weak():
+    from multi_map_merge.core.placement import PRIOR
+    at_prior = Placement(se2(1.0, 2.0, 0.0), 0.0, 0.0, 0, PRIOR, ('a', 'd'), NOW, weak=True)
+    s = robot_diagnostic('d', RobotStatus(True, False, at_prior), False, NOW)
+    assert s.level == DiagnosticStatus.WARN
+    assert s.message == 'merged via initial_pose, weakly pinned: placed at its prior, no link pins it'
+    assert (values(s)['weak'], values(s)['sigma_position']) == ('true', '-')
+    unknown = Placement(se2(1.0, 2.0, 0.0), 0.5, 0.9, 30, 'a', ('a', 'e'), NOW, weak=True)
+    s = robot_diagnostic('e', RobotStatus(True, False, unknown), False, NOW)
+    assert s.level == DiagnosticStatus.WARN
+    assert s.message.endswith('its covariance is unknown (a link on its chain has none)')
+
+
+def test_node_warns_naming_the_weakly_pinned_robots():
+    st = pinned_team()
+    s = node_diagnostic(st, {}, 0.3, None, 3, 3)
+    assert (s.level, s.message) == (DiagnosticStatus.WARN, 'weakly pinned: b')
+    assert (values(s)['weakly_pinned'], values(s)['not_merged']) == ('b', '-')
+    st['b'].placement.weak = False
+    s = node_diagnostic(st, {}, 0.3, None, 3, 3)
+    assert s.level == DiagnosticStatus.OK and values(s)['weakly_pinned'] == '-'
+
+
+def test_sigma_on_diagnostics_is_the_grids_covariance(halves_merged):
+    """On a real merge (the covariance from the grids): sigma_position and weak read as
+    core.state.placement_dict says."""
+    from multi_map_merge.core.state import placement_dict
+    m = halves_merged
+    pl = m.placements()['b']
+    d = placement_dict(pl)
+    assert 'sigma_position' in d
+    kv = values(robot_diagnostic('b', m.status()['b'], False, NOW, max_position_sigma=m.config.max_position_sigma))
+    assert abs(float(kv['sigma_position']) - d['sigma_position']) <= 5e-5
+    assert kv['weak'] == str(d['weak']).lower()

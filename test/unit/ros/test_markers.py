@@ -70,3 +70,36 @@ def test_the_key_changes_with_a_placement_or_a_link_only():
     assert markers_key(PLACED, LINKS[:2]) != k
     only_ref = markers_msg({'tb3_0': PLACED['tb3_0']}, [], 'map', 0, 0.8)
     assert [m.ns for m in only_ref.markers] == ['', 'robots', 'robot_names']
+
+
+def test_a_2_sigma_ellipse_per_robot_with_a_covariance():
+    """ns robot_ellipses: a flat cylinder at the robot's origin whose half-axes are 2 sqrt of the
+    eigenvalues of its placement's x, y covariance (scale is the diameter), its x axis along the
+    major eigenvector; red when weakly pinned; none without a covariance (the reference)."""
+    rot = np.array([[math.cos(0.6), -math.sin(0.6)], [math.sin(0.6), math.cos(0.6)]])
+    cov_xy = rot @ np.diag([0.09 ** 2, 0.02 ** 2]) @ rot.T      # major axis at 0.6 rad
+    cov1 = np.zeros((3, 3))
+    cov1[:2, :2], cov1[2, 2] = cov_xy, 1e-5
+    cov2 = np.diag([0.004 ** 2, 0.01 ** 2, 1e-6])                # major axis along y
+    placed = dict(PLACED)
+    placed['tb3_1'] = Placement(PLACED['tb3_1'].T, 0.4, 0.95, 30, 'tb3_0', ('tb3_0', 'tb3_1'), 0.0, cov=cov1, weak=True)
+    placed['tb3_2'] = Placement(PLACED['tb3_2'].T, 0.4, 0.95, 30, 'tb3_1', ('tb3_0', 'tb3_1', 'tb3_2'), 0.0,
+                                cov=cov2, weak=False)
+    ns = by_ns(markers_msg(placed, LINKS, 'map', 0, 0.8))
+    ellipses = {m.id: m for m in ns['robot_ellipses']}
+    assert sorted(ellipses) == [1, 2]                           # ids: the robots' ranks; tb3_0 has none
+    for i, robot in ((1, 'tb3_1'), (2, 'tb3_2')):
+        e, p = ellipses[i], placed[robot]
+        assert e.type == Marker.CYLINDER and e.header.frame_id == 'map'
+        assert (e.pose.position.x, e.pose.position.y) == pytest.approx((p.T[0, 2], p.T[1, 2]))
+        w, v = np.linalg.eigh(p.cov[:2, :2])
+        assert (e.scale.x / 2, e.scale.y / 2) == pytest.approx((2 * math.sqrt(w[1]), 2 * math.sqrt(w[0])))
+        yaw = 2 * math.atan2(e.pose.orientation.z, e.pose.orientation.w)
+        along = np.array([math.cos(yaw), math.sin(yaw)])
+        assert abs(along @ v[:, 1]) == pytest.approx(1.0, abs=1e-9)   # x axis on the major eigenvector
+    assert ellipses[1].scale.x / 2 == pytest.approx(0.18) and ellipses[1].scale.y / 2 == pytest.approx(0.04)
+    assert math.remainder(2 * math.atan2(ellipses[1].pose.orientation.z, ellipses[1].pose.orientation.w) - 0.6,
+                          math.pi) == pytest.approx(0, abs=1e-9)
+    assert (ellipses[1].color.r, ellipses[1].color.g) == (1.0, pytest.approx(0.1))    # weak: red
+    assert ellipses[2].color.r < 0.5                                                   # well pinned
+    assert markers_key(placed, LINKS) != markers_key(PLACED, LINKS)                   # drawn again
