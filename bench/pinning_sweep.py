@@ -5,8 +5,10 @@
     python3 bench/pinning_sweep.py -o /tmp/sweep.json            # merge every case (minutes)
     python3 bench/pinning_sweep.py --cases /tmp/sweep.pkl ...     # reuse the merges
 
-Cases, per ground-truth building with a CARMEN log (``lab/drives.py``): ``chain`` (the drive
-cut into 4, 6 and 8 consecutive stretches overlapping only their neighbours, seeds 0 and 1)
+Cases, per ground-truth building (``lab/drives.py``: the 11 with a CARMEN log, along their
+real drive, and the two AWS maps, along a drive planned through their free space): ``chain``
+(the drive cut into 4, 6 and 8 consecutive stretches, each grown into its neighbours; a drive
+that comes back to a place makes its stretches overlap more than neighbours; seeds 0 and 1)
 and ``flood`` (4 and 6 robots spreading out from a common start, seed 0), every robot's map at
 a random pose. Each case is merged by a fresh ``MapMerger`` (one cycle). Then:
 
