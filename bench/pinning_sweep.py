@@ -198,6 +198,8 @@ def main():
                          '(links still get a covariance, which changes no estimate: pair digest identical)')
     ap.add_argument('--max-range', type=float, default=drives.MAX_RANGE, help='metres a robot\'s map reaches')
     ap.add_argument('--overlap', type=float, default=0.15, help='chain: share of a stretch added at both ends')
+    ap.add_argument('--strict', action='store_true',
+                    help='chain: each robot keeps only cells no stretch but its neighbours saw (lab/drives.chain)')
     ap.add_argument('--config', default='{}', help='MergeConfig fields as JSON')
     ap.add_argument('--calibrate', action='store_true',
                     help='recompute every link\'s covariance over a range of temperatures and floors')
@@ -216,6 +218,7 @@ def main():
         placement.graph_poses = lambda best, links, ref, covs=None: graph_poses(best, links, ref)
     drives.MAX_RANGE = a.max_range
     tag = '' if (a.max_range, a.overlap) == (8.0, 0.15) else '_r%g_o%g' % (a.max_range, a.overlap)
+    tag += '_strict' if a.strict else ''
     config = json.loads(a.config)
     config.setdefault('workers', 1)
     results, inputs = [], []
@@ -225,6 +228,8 @@ def main():
             continue
         world = poses = None
         for kind, n, seed in case_list(a.quick):
+            if a.strict and kind != 'chain':
+                continue
             f = os.path.join(a.cases, '%s_%s%d_%d%s.pkl' % (name, kind, n, seed, tag))
             if os.path.exists(f):
                 with open(f, 'rb') as fh:
@@ -233,7 +238,7 @@ def main():
                 if world is None:
                     world, poses, ranges, angles = drives.load(DATA, name, a.cases)
                 if kind == 'chain':
-                    pieces = drives.chain(world, poses, ranges, angles, n, seed, a.overlap)
+                    pieces = drives.chain(world, poses, ranges, angles, n, seed, a.overlap, a.strict)
                 else:
                     pieces = drives.flood(world, poses, ranges, angles, n, seed)
                 with open(f, 'wb') as fh:

@@ -208,16 +208,32 @@ def masked_piece(world: Grid, mask: np.ndarray, pose, frame_id: str = '') -> Tup
 
 
 def chain(world: Grid, poses: np.ndarray, ranges: np.ndarray, angles: np.ndarray, n: int,
-          seed: int, overlap: float = 0.15) -> List[Tuple[Grid, np.ndarray]]:
+          seed: int, overlap: float = 0.15, strict: bool = False) -> List[Tuple[Grid, np.ndarray]]:
     """n robots, each the scans of one stretch of the drive (see the module docstring), at
-    random poses: [(grid, T_world_k)] in the drive's order."""
+    random poses: [(grid, T_world_k)] in the drive's order.
+
+    A drive that comes back to a place it saw (a loop, a corridor driven both ways) makes
+    stretches far apart in the drive overlap too: the chain is then not only a chain. With
+    ``strict``, a robot keeps only the cells that no stretch other than itself and its two
+    neighbours saw, so robots overlap their neighbours only (the places seen again are in no
+    robot's map but one or two consecutive ones)."""
     s = travelled(poses)
     L = s[-1] / n
-    out = []
-    for k, pose in enumerate(random_poses(n, seed)):
+    masks = []
+    for k in range(n):
         sel = (s >= (k - overlap) * L) & (s <= (k + 1 + overlap) * L)
-        out.append(masked_piece(world, seen(world, poses[sel], ranges[sel], angles), pose, 'r%d' % k))
-    return out
+        masks.append(seen(world, poses[sel], ranges[sel], angles))
+    if strict:
+        count = np.zeros(world.data.shape, np.int32)
+        for m in masks:
+            count += m
+        kept = []
+        for k, m in enumerate(masks):
+            near = sum(masks[j].astype(np.int32) for j in range(max(0, k - 1), min(n, k + 2)))
+            kept.append(m & (count == near))     # seen by no stretch beyond its neighbours
+        masks = kept
+    return [masked_piece(world, m, pose, 'r%d' % k)
+            for k, (m, pose) in enumerate(zip(masks, random_poses(n, seed)))]
 
 
 def flood(world: Grid, poses: np.ndarray, ranges: np.ndarray, angles: np.ndarray, n: int,
