@@ -157,7 +157,7 @@ def summary(results):
     lines = []
     for kind in ('chain', 'flood'):
         rs = [r for r in results if r['kind'] == kind]
-        n_rob = sum(r['n'] - 1 for r in rs)
+        n_rob = sum(r.get('robots_cut', r['n']) - 1 for r in rs)
         placed = [x for r in rs for x in r['robots']]
         right = sum(x['right'] for x in placed)
         off = sorted(x['err_m'] for x in placed if not x['right'])
@@ -249,10 +249,11 @@ def main():
             links, robots = evaluate(m, truths)
             if a.calibrate:
                 inputs += link_inputs(m, truths)
-            results.append({'building': name, 'kind': kind, 'n': n, 'seed': seed, 'links': links,
+            results.append({'building': name, 'kind': kind, 'n': n, 'robots_cut': len(pieces),
+                            'seed': seed, 'links': links,
                             'robots': robots, 'seconds': dt})
             print('%-16s %s%d/%d: placed %d/%d right %d  worst %.3f m  links %d  (%.1f s)'
-                  % (name, kind, n, seed, len(robots), n - 1, sum(r['right'] for r in robots),
+                  % (name, kind, n, seed, len(robots), len(pieces) - 1, sum(r['right'] for r in robots),
                      max([r['err_m'] for r in robots] or [0.0]), len(links), dt), flush=True)
     print(summary(results))
     print('estimation cycles: %.1f s in all' % t_merge)

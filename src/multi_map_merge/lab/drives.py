@@ -216,7 +216,8 @@ def chain(world: Grid, poses: np.ndarray, ranges: np.ndarray, angles: np.ndarray
     stretches far apart in the drive overlap too: the chain is then not only a chain. With
     ``strict``, a robot keeps only the cells that no stretch other than itself and its two
     neighbours saw, so robots overlap their neighbours only (the places seen again are in no
-    robot's map but one or two consecutive ones)."""
+    robot's map but one or two consecutive ones); a stretch left with nothing is no robot
+    (fewer than n, renumbered in the drive's order)."""
     s = travelled(poses)
     L = s[-1] / n
     masks = []
@@ -232,6 +233,10 @@ def chain(world: Grid, poses: np.ndarray, ranges: np.ndarray, angles: np.ndarray
             near = sum(masks[j].astype(np.int32) for j in range(max(0, k - 1), min(n, k + 2)))
             kept.append(m & (count == near))     # seen by no stretch beyond its neighbours
         masks = kept
+        # a stretch all of whose cells other stretches saw too has no map left: no robot
+        kept = [(m, pose) for m, pose in zip(masks, random_poses(n, seed)) if known_bbox(
+            np.where(m, world.levels(), UNKNOWN)) is not None]
+        return [masked_piece(world, m, pose, 'r%d' % k) for k, (m, pose) in enumerate(kept)]
     return [masked_piece(world, m, pose, 'r%d' % k)
             for k, (m, pose) in enumerate(zip(masks, random_poses(n, seed)))]
 
