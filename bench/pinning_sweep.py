@@ -5,8 +5,10 @@
     python3 bench/pinning_sweep.py -o /tmp/sweep.json            # merge every case (minutes)
     python3 bench/pinning_sweep.py --cases /tmp/sweep.pkl ...     # reuse the merges
 
-Cases, per ground-truth building with a CARMEN log (``lab/drives.py``): ``chain`` (the drive
-cut into 4, 6 and 8 consecutive stretches overlapping only their neighbours, seeds 0 and 1)
+Cases, per ground-truth building (``lab/drives.py``: the 11 with a CARMEN log, along their
+real drive, and the two AWS maps, along a drive planned through their free space): ``chain``
+(the drive cut into 4, 6 and 8 consecutive stretches, each grown into its neighbours; a drive
+that comes back to a place makes its stretches overlap more than neighbours; seeds 0 and 1)
 and ``flood`` (4 and 6 robots spreading out from a common start, seed 0), every robot's map at
 a random pose. Each case is merged by a fresh ``MapMerger`` (one cycle). Then:
 
@@ -155,7 +157,7 @@ def summary(results):
     lines = []
     for kind in ('chain', 'flood'):
         rs = [r for r in results if r['kind'] == kind]
-        n_rob = sum(r['n'] - 1 for r in rs)
+        n_rob = sum(r.get('robots_cut', r['n']) - 1 for r in rs)
         placed = [x for r in rs for x in r['robots']]
         right = sum(x['right'] for x in placed)
         off = sorted(x['err_m'] for x in placed if not x['right'])
@@ -196,6 +198,8 @@ def main():
                          '(links still get a covariance, which changes no estimate: pair digest identical)')
     ap.add_argument('--max-range', type=float, default=drives.MAX_RANGE, help='metres a robot\'s map reaches')
     ap.add_argument('--overlap', type=float, default=0.15, help='chain: share of a stretch added at both ends')
+    ap.add_argument('--strict', action='store_true',
+                    help='chain: each robot keeps only cells no stretch but its neighbours saw (lab/drives.chain)')
     ap.add_argument('--config', default='{}', help='MergeConfig fields as JSON')
     ap.add_argument('--calibrate', action='store_true',
                     help='recompute every link\'s covariance over a range of temperatures and floors')
@@ -214,6 +218,7 @@ def main():
         placement.graph_poses = lambda best, links, ref, covs=None: graph_poses(best, links, ref)
     drives.MAX_RANGE = a.max_range
     tag = '' if (a.max_range, a.overlap) == (8.0, 0.15) else '_r%g_o%g' % (a.max_range, a.overlap)
+    tag += '_strict' if a.strict else ''
     config = json.loads(a.config)
     config.setdefault('workers', 1)
     results, inputs = [], []
@@ -223,6 +228,8 @@ def main():
             continue
         world = poses = None
         for kind, n, seed in case_list(a.quick):
+            if a.strict and kind != 'chain':
+                continue
             f = os.path.join(a.cases, '%s_%s%d_%d%s.pkl' % (name, kind, n, seed, tag))
             if os.path.exists(f):
                 with open(f, 'rb') as fh:
@@ -231,7 +238,7 @@ def main():
                 if world is None:
                     world, poses, ranges, angles = drives.load(DATA, name, a.cases)
                 if kind == 'chain':
-                    pieces = drives.chain(world, poses, ranges, angles, n, seed, a.overlap)
+                    pieces = drives.chain(world, poses, ranges, angles, n, seed, a.overlap, a.strict)
                 else:
                     pieces = drives.flood(world, poses, ranges, angles, n, seed)
                 with open(f, 'wb') as fh:
@@ -242,10 +249,11 @@ def main():
             links, robots = evaluate(m, truths)
             if a.calibrate:
                 inputs += link_inputs(m, truths)
-            results.append({'building': name, 'kind': kind, 'n': n, 'seed': seed, 'links': links,
+            results.append({'building': name, 'kind': kind, 'n': n, 'robots_cut': len(pieces),
+                            'seed': seed, 'links': links,
                             'robots': robots, 'seconds': dt})
             print('%-16s %s%d/%d: placed %d/%d right %d  worst %.3f m  links %d  (%.1f s)'
-                  % (name, kind, n, seed, len(robots), n - 1, sum(r['right'] for r in robots),
+                  % (name, kind, n, seed, len(robots), len(pieces) - 1, sum(r['right'] for r in robots),
                      max([r['err_m'] for r in robots] or [0.0]), len(links), dt), flush=True)
     print(summary(results))
     print('estimation cycles: %.1f s in all' % t_merge)

@@ -81,3 +81,59 @@ def test_status_reports_how_well_a_robot_is_placed(intel):
     # the same placement, asked to be pinned within a millimetre, is reported weak, still merged
     st = intel_pair(intel, max_position_sigma=0.001).status()
     assert st['b'].merged and st['b'].placement.weak is True
+
+
+def intel_corridor_team(intel):
+    """Three robots cut from the Intel lab (cells of its map, in the shipped map's frame): a
+    (the reference) its columns left of 600; b those right of 600 and, reaching into a's part,
+    3 m of the bottom corridor (rows 95-155, columns 400-600), so a and b share only that
+    stretch of corridor; c a block of rooms across column 600 (rows 400-640, columns 480-720),
+    which overlaps a and b on both sides. Each at its own pose: [(grid, T_world_k)] a, b, c."""
+    from multi_map_merge.lab.drives import masked_piece
+
+    def cells(r0, r1, c0, c1):
+        m = np.zeros(intel.data.shape, bool)
+        m[r0:r1, c0:c1] = True
+        return m
+    return [masked_piece(intel, cells(0, 800, 0, 600), (0.0, 0.0, 0.0), 'a'),
+            masked_piece(intel, cells(0, 800, 600, 854) | cells(95, 155, 400, 600), (3.0, -2.0, 2.0), 'b'),
+            masked_piece(intel, cells(400, 640, 480, 720), (-1.0, 4.0, -1.0), 'c')]
+
+
+def b_placement(m, team):
+    """(b's placement, its position error (2,) against the truth, in a's frame)."""
+    pl = m.placements()['b']
+    T_true = np.linalg.inv(team[0][1]) @ team[1][1]
+    return pl, np.array(xyyaw(pl.T)[:2]) - np.array(xyyaw(T_true)[:2])
+
+
+def test_a_weakly_pinned_robot_improves_when_another_link_pins_the_weak_direction(intel):
+    """Issue 22: b joined to the reference a through a corridor only is placed but weak, its
+    uncertainty along the corridor; c arrives, overlapping both across rooms: b's placement is
+    pinned and no worse. (Checked to fail when the pose graph leaves the b-c link out: b keeps
+    its corridor link alone and its 2-sigma stays 0.18 m.)"""
+    team = intel_corridor_team(intel)
+    m = MapMerger(MergeConfig(workers=1, reference_robot='a'))
+    m.update_map('a', team[0][0])
+    m.update_map('b', team[1][0])
+    m.estimate()
+    before, err0 = b_placement(m, team)
+    assert before.path == ('a', 'b') and m.status()['b'].linked_to == ('a',)
+    sig0 = position_sigma(before.cov)
+    assert before.weak and 2 * sig0 > m.config.max_position_sigma, sig0
+    # its major axis lies along the corridor, which runs along x in a's frame (the map's columns)
+    w, v = np.linalg.eigh(before.cov[:2, :2])
+    assert abs(v[0, 1]) > math.cos(math.radians(10)), v[:, 1]
+    assert math.sqrt(w[1]) > 3 * math.sqrt(w[0]), w          # across it, pinned
+    # the truth is inside its 95% ellipse (2 dof)
+    assert err0 @ np.linalg.solve(before.cov[:2, :2], err0) < 5.99, (err0, before.cov)
+
+    m.update_map('c', team[2][0])
+    m.estimate()
+    after, err1 = b_placement(m, team)
+    assert set(m.status()['c'].linked_to) == {'a', 'b'}
+    sig1 = position_sigma(after.cov)
+    assert sig1 < sig0 / 2.5, (sig0, sig1)
+    assert not after.weak and not m.status()['b'].placement.weak
+    assert np.hypot(*err1) <= np.hypot(*err0) + 0.005, (err0, err1)
+    assert err1 @ np.linalg.solve(after.cov[:2, :2], err1) < 5.99, (err1, after.cov)
