@@ -2,7 +2,7 @@
 """Does estimation block publishing? The live node while a long estimation runs and /map has new
 content to publish every merge period.
 
-    python3 bench/live_gap.py [--robots 4] [--late 12] [--join-at 12] [--seconds 40] [--min-periods 4]
+    python3 bench/live_gap.py [--robots 4] [--late 28] [--join-at 12] [--seconds 40] [--min-periods 4]
                               [--port 11800] [--no-peer] [--no-build]
 
 Runs `make build` first (unless --no-build) and takes the environment of the workspace's
@@ -226,7 +226,7 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     ap.add_argument('--robots', type=int, default=4,
                     help='robots whose maps grow every merge period (windows of 35%% of edmonton)')
-    ap.add_argument('--late', type=int, default=12,
+    ap.add_argument('--late', type=int, default=28,
                     help='robots joining at --join-at with big maps (windows of half edmonton, ~1.8 M cells)')
     ap.add_argument('--join-at', type=float, default=12.0, help='seconds after the node\'s start')
     ap.add_argument('--seconds', type=float, default=40.0)
