@@ -1,7 +1,7 @@
 """The benchmark's inputs: robots' maps cut out of real maps, written as map_server files.
 
 Both mergers read the very same files. Where the maps are cut from a ground-truth map
-(``synth.split_rects`` / windows + ``cut_piece`` at ``random_poses``), the true pose of every
+(``pieces.split_rects`` / windows + ``cut_piece`` at ``random_poses``), the true pose of every
 robot's map frame is known and returned, so both mergers' answers can be scored.
 """
 from __future__ import annotations
@@ -19,7 +19,7 @@ SHARED = os.path.abspath(os.path.join(REPO, '..', 'shared'))
 DATA = os.path.join(SHARED, 'data')
 
 from multi_map_merge.core.mapio import load_map, save_map  # noqa: E402
-from multi_map_merge.lab.synth import cut_piece, pieces_windows, random_poses, split_rects  # noqa: E402
+from multi_map_merge.lab.pieces import cut_piece, pieces_windows, random_poses, split_rects  # noqa: E402
 
 
 def world_map(name):

@@ -51,7 +51,7 @@ config_mod = _module('multi_map_merge.core.config', 'multi_map_merge.config')
 grid_mod = _module('multi_map_merge.core.grid', 'multi_map_merge.grid')
 mapio = _module('multi_map_merge.core.mapio', 'multi_map_merge.mapio')
 merger_mod = _module('multi_map_merge.core.merger', 'multi_map_merge.merger')
-synth = _module('multi_map_merge.lab.synth', 'multi_map_merge.synth')
+pieces_mod = _module('multi_map_merge.lab.pieces', 'multi_map_merge.lab.synth', 'multi_map_merge.synth')
 
 
 def buildings():
@@ -91,9 +91,9 @@ def cases(world, seed):
     """[(case, rects, poses)]: the world split into 4 overlapping pieces, 4 windows of half of
     it (every pair overlaps), 6 windows of 35% of it (some pairs barely or do not overlap: the
     rejections and look-alikes)."""
-    return [('split4', synth.split_rects(world, 4, 0.3), synth.random_poses(4, seed)),
-            ('windows4', windows(world, 4, 0.5, seed + 100), synth.random_poses(4, seed + 1)),
-            ('windows6', windows(world, 6, 0.35, seed + 200), synth.random_poses(6, seed + 2))]
+    return [('split4', pieces_mod.split_rects(world, 4, 0.3), pieces_mod.random_poses(4, seed)),
+            ('windows4', windows(world, 4, 0.5, seed + 100), pieces_mod.random_poses(4, seed + 1)),
+            ('windows6', windows(world, 6, 0.35, seed + 200), pieces_mod.random_poses(6, seed + 2))]
 
 
 def _f(x):
@@ -150,12 +150,12 @@ def run_case(world, case, rects, poses, workers):
     m = merger_mod.MapMerger(config_mod.MergeConfig(workers=workers))
     names = ['r%d' % k for k in range(len(rects))]
     for n, rect, pose in zip(names, rects, poses):
-        m.update_map(n, synth.cut_piece(world, rect, pose, frame_id=n + '/map')[0])
+        m.update_map(n, pieces_mod.cut_piece(world, rect, pose, frame_id=n + '/map')[0])
     first = cycle_record(m, m.estimate())
     # robot 1's map grows (the same frame, a larger cut): its pairs are aligned again
-    m.update_map(names[1], synth.cut_piece(world, grown(rects[1], world), poses[1], frame_id=names[1] + '/map')[0])
+    m.update_map(names[1], pieces_mod.cut_piece(world, grown(rects[1], world), poses[1], frame_id=names[1] + '/map')[0])
     second = cycle_record(m, m.estimate())
-    truth = [_matrix(synth.cut_piece(world, r, p)[1]) for r, p in zip(rects[:1], poses[:1])]
+    truth = [_matrix(pieces_mod.cut_piece(world, r, p)[1]) for r, p in zip(rects[:1], poses[:1])]
     return {'case': case, 'rects': [list(r) for r in rects], 'poses': [[_f(v) for v in p] for p in poses],
             'truth_0': truth[0], 'cycles': [first, second]}
 

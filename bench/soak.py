@@ -51,7 +51,7 @@ from peer import live_node  # noqa: E402
 from report import machine  # noqa: E402
 
 from multi_map_merge.core.mapio import save_map  # noqa: E402
-from multi_map_merge.lab.synth import pieces_windows  # noqa: E402
+from multi_map_merge.lab.pieces import pieces_windows  # noqa: E402
 
 FLIPS = 200          # known cells flipped free <-> occupied in every message
 GROW_FROM = 0.3      # of the largest radius, at robot time 0

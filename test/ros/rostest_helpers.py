@@ -22,7 +22,7 @@ from rospy.numpy_msg import numpy_msg
 from multi_map_merge.core.grid import FREE, OCCUPIED, UNKNOWN, known_bbox
 from multi_map_merge.core.mapio import load_map
 from multi_map_merge.core.transforms import cell_to_metric, pose_distance, se2, xyyaw
-from multi_map_merge.lab.synth import cut_piece, split_rects
+from multi_map_merge.lab.pieces import cut_piece, split_rects
 from multi_map_merge.ros.convert import grid_to_msg, quaternion_yaw, transform_msg
 
 NumpyGrid = numpy_msg(OccupancyGrid)

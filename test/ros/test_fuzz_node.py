@@ -15,7 +15,7 @@ from rostest_helpers import Listener, RobotPlayer, data_file, make_pieces, same_
 
 from multi_map_merge.core.grid import Grid
 from multi_map_merge.core.mapio import load_map
-from multi_map_merge.lab.synth import bad_grids
+from multi_map_merge.lab.pieces import bad_grids
 from multi_map_merge.ros.convert import NumpyGrid, grid_to_msg
 
 PKG = 'multi_map_merge'

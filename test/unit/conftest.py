@@ -77,7 +77,7 @@ def halves_merged(intel):
     """A merger after one cycle on robots a, b (two overlapping parts of the Intel lab, b turned
     and moved; reference a) and c (a corner of it too small to place: not merged)."""
     from multi_map_merge.core.grid import known_bbox
-    from multi_map_merge.lab.synth import cut_piece
+    from multi_map_merge.lab.pieces import cut_piece
     r0, r1, c0, c1 = known_bbox(intel.levels())
     a = cut_piece(intel, (r0, r1, c0, c0 + int(0.6 * (c1 - c0))), (0, 0, 0))[0]
     b = cut_piece(intel, (r0, r1, c0 + int(0.4 * (c1 - c0)), c1), (3, -2, 2.0))[0]

@@ -5,7 +5,7 @@ The ground-truth maps of ``../shared/data/ground_truth`` were rasterised from th
 corrected poses, in the log's frame, so a log's poses say where a robot drove and its scans
 what it saw. A robot's map is the ground-truth map where the robot's scans of a part of the
 drive reached (each scan's fan of beams, filled), moved into a frame of its own by a chosen
-pose (:func:`synth.cut_piece`):
+pose (:func:`pieces.cut_piece`):
 
 - :func:`chain`: the drive cut into n consecutive stretches (equal distance driven), each
   grown by ``overlap`` of its length at both ends, so each robot overlaps only its
@@ -33,8 +33,8 @@ import numpy as np
 from ..core.grid import FREE, UNKNOWN, Grid, known_bbox, levels_to_values
 from ..core.mapio import load_map
 from ..core.transforms import cell_to_metric, inverse
+from .pieces import cut_piece, random_poses
 from .simulate import read_carmen
-from .synth import cut_piece, random_poses
 
 # metres: how far a robot's map reaches from its drive (an LDS-02 sees 8 m; the ground-truth
 # maps were rasterised from beams up to 20 m, so a robot's map is always part of them)
@@ -198,7 +198,7 @@ def seen(world: Grid, poses: np.ndarray, ranges: np.ndarray, angles: np.ndarray,
 
 def masked_piece(world: Grid, mask: np.ndarray, pose, frame_id: str = '') -> Tuple[Grid, np.ndarray]:
     """The world's cells under ``mask`` as a robot's map in a frame at ``pose`` (x, y, yaw in
-    the world frame): (grid, T_world_k), as :func:`synth.cut_piece`."""
+    the world frame): (grid, T_world_k), as :func:`pieces.cut_piece`."""
     lv = world.levels().copy()
     lv[~mask] = UNKNOWN
     box = known_bbox(lv)

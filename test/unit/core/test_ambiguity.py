@@ -11,7 +11,7 @@ from conftest import DATA, merged, pose_error
 from multi_map_merge.core.grid import Grid, known_bbox
 from multi_map_merge.core.mapio import load_map
 from multi_map_merge.core.transforms import xyyaw
-from multi_map_merge.lab.synth import cut_piece
+from multi_map_merge.lab.pieces import cut_piece
 
 
 def look_alike_building():

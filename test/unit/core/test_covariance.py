@@ -9,7 +9,7 @@ from conftest import truth
 from multi_map_merge.core import covariance as cv
 from multi_map_merge.core.grid import FREE, OCCUPIED
 from multi_map_merge.core.transforms import pose_to_image, se2, xyyaw
-from multi_map_merge.lab.synth import cut_piece, split_rects
+from multi_map_merge.lab.pieces import cut_piece, split_rects
 
 
 def corridor(c0, c1, width=30, end_wall=False):

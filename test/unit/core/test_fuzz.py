@@ -8,7 +8,7 @@ from conftest import DATA
 from multi_map_merge.core.grid import Grid, GridError, apply_update, make_grid
 from multi_map_merge.core.mapio import load_map
 from multi_map_merge.core.merger import MapMerger
-from multi_map_merge.lab.synth import bad_grids, cut_piece, random_poses, split_rects
+from multi_map_merge.lab.pieces import bad_grids, cut_piece, random_poses, split_rects
 
 
 def test_every_bad_grid_gets_a_reason():

@@ -10,7 +10,7 @@ from multi_map_merge.core.grid import Grid, known_bbox
 from multi_map_merge.core.mapio import load_map
 from multi_map_merge.core.merger import MapMerger
 from multi_map_merge.core.state import load_state, save_state
-from multi_map_merge.lab.synth import cut_piece
+from multi_map_merge.lab.pieces import cut_piece
 
 
 def strip_pieces(w, poses):

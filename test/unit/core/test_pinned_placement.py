@@ -10,7 +10,7 @@ from multi_map_merge.core.config import MergeConfig
 from multi_map_merge.core.merger import MapMerger
 from multi_map_merge.core.placement import position_sigma
 from multi_map_merge.core.transforms import se2, xyyaw
-from multi_map_merge.lab.synth import cut_piece, split_rects
+from multi_map_merge.lab.pieces import cut_piece, split_rects
 
 TIGHT = np.diag([0.01 ** 2, 0.01 ** 2, math.radians(0.05) ** 2])
 CORRIDOR_X = np.diag([0.2 ** 2, 0.01 ** 2, math.radians(0.05) ** 2])   # slides along x

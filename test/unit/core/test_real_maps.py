@@ -243,7 +243,7 @@ def test_look_alike_windows_with_little_evidence_are_not_placed(shared_data, wor
     premise, checked first: a window where it does not hold tests nothing); with the gate every
     placed robot is right, and no robot placed right without it is lost with it."""
     from multi_map_merge.core.config import MergeConfig
-    from multi_map_merge.lab.synth import pieces_windows
+    from multi_map_merge.lab.pieces import pieces_windows
     world_map = load_map(os.path.join(shared_data, 'ground_truth', '%s_gt.yaml' % world))
     pieces = pieces_windows(world_map, robots, frac, seed)
     errors = {}

@@ -12,7 +12,7 @@ from multi_map_merge.core import offline as cli
 from multi_map_merge.core.mapio import load_map, save_map
 from multi_map_merge.core.merger import MapMerger
 from multi_map_merge.core.transforms import se2
-from multi_map_merge.lab.synth import cut_piece, random_poses, split_rects
+from multi_map_merge.lab.pieces import cut_piece, random_poses, split_rects
 
 CASES = [(world, n, seed) for world in ('intel', 'aws_small_house') for n in (2, 3, 4) for seed in (0, 1, 2, 3)]
 

@@ -14,7 +14,7 @@ from multi_map_merge.core.transforms import (
     se2,
     xyyaw,
 )
-from multi_map_merge.lab.synth import cut_piece
+from multi_map_merge.lab.pieces import cut_piece
 
 
 def test_cell_to_metric_by_hand():
@@ -78,7 +78,7 @@ def _centroid(levels, value):
 @pytest.mark.parametrize('pose', [(2.0, -1.5, math.pi / 2), (-3.25, 0.7, -2.6), (0.4, 4.0, 0.3),
                                   (1.0, 1.0, math.pi)])
 def test_image_to_pose_of_true_image_transform_is_the_pose(pose):
-    """Grid B = grid A moved by a known pose (synth.cut_piece). Two 3x3 markers (an occupied
+    """Grid B = grid A moved by a known pose (pieces.cut_piece). Two 3x3 markers (an occupied
     one and a free one, far apart, everything else unknown) give the true cell correspondence
     B -> A independently of pose_to_image; image_to_pose of it must be that pose."""
     from multi_map_merge.core.grid import FREE, OCCUPIED, Grid

@@ -14,7 +14,7 @@ from multi_map_merge.core import workers
 from multi_map_merge.core.config import MergeConfig
 from multi_map_merge.core.grid import Grid
 from multi_map_merge.core.merger import MapMerger
-from multi_map_merge.lab.synth import cut_piece, split_rects
+from multi_map_merge.lab.pieces import cut_piece, split_rects
 
 
 def test_a_killed_worker_fails_one_cycle_then_a_new_pool_estimates(intel):

@@ -23,7 +23,7 @@ from multi_map_merge.lab.evaluate import (
     score_map,
     transform_errors,
 )
-from multi_map_merge.lab.synth import cut_piece, random_poses
+from multi_map_merge.lab.pieces import cut_piece, random_poses
 
 HOUSE = os.path.join(DATA, 'aws_small_house.yaml')
 INTEL = os.path.join(DATA, 'intel.yaml')

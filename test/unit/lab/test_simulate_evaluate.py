@@ -157,7 +157,7 @@ def test_a_distorted_map_loses_fitness(house, open3d):
 
 
 def test_score_without_a_coarse_pose_uses_the_merger(house, open3d):
-    from multi_map_merge.lab.synth import cut_piece
+    from multi_map_merge.lab.pieces import cut_piece
     piece, T = cut_piece(house, (150, 330, 60, 260), (2.0, -1.0, 1.2), 'piece')
     s = score_map(piece, house)
     assert s.init_source == 'merger'
