@@ -98,16 +98,11 @@ def publisher(spec):
     import numpy as np
     import rospy
 
-    from multi_map_merge.core.mapio import load_map
     from multi_map_merge.ros.convert import NumpyGrid, grid_to_msg
     rospy.init_node('live_gap_maps', anonymous=True)
     robots = []
     for r in spec['robots']:
-        g = load_map(r['path'])
-        known = g.data >= 0
-        rr, cc = np.nonzero(known)
-        d = np.hypot(np.arange(g.height)[:, None] - rr.mean(), np.arange(g.width)[None, :] - cc.mean())
-        robots.append(dict(r, grid=g, dist=d.astype(np.float32), dmax=float(d[known].max()), pub=None))
+        robots.append(dict(r, pub=None, **growing_map(r['path'])))
     period, t0 = spec['period'], time.monotonic()
     k = 0
     while not rospy.is_shutdown():
@@ -222,6 +217,78 @@ def analyse(maps, tfs, est, t_start, t_end, merge_period, min_periods=4):
     return out
 
 
+
+def private_ros_env(base: dict, port: int, tmp: str) -> dict:
+    """``base`` with a private master on the loopback at ``port`` (works where the machine's own
+    hostname does not resolve), ROS_HOME and logs under ``tmp``; set in this process too."""
+    env = dict(base, ROS_MASTER_URI='http://127.0.0.1:%d' % port, ROS_IP='127.0.0.1',
+               ROS_HOME=os.path.join(tmp, 'ros'), ROS_LOG_DIR=os.path.join(tmp, 'ros', 'log'))
+    env.pop('ROS_HOSTNAME', None)
+    os.environ.update(env)
+    return env
+
+
+class Processes(list):
+    """The processes a benchmark starts (each in a session of its own, its output in a log file
+    under ``tmp``), stopped as roslaunch stops nodes: SIGINT, then SIGKILL after 10 s."""
+
+    def __init__(self, env: dict, tmp: str):
+        super().__init__()
+        self.env, self.tmp = env, tmp
+
+    def start(self, cmd, log):
+        p = subprocess.Popen(cmd, env=self.env, stdout=open(os.path.join(self.tmp, log), 'w'),
+                             stderr=subprocess.STDOUT, start_new_session=True)
+        self.append(p)
+        return p
+
+    @staticmethod
+    def stop(ps):
+        for p in ps:
+            try:
+                os.killpg(p.pid, signal.SIGINT)
+            except ProcessLookupError:
+                pass
+        for p in ps:
+            try:
+                p.wait(10)
+            except subprocess.TimeoutExpired:
+                os.killpg(p.pid, signal.SIGKILL)
+
+
+def mexplore_node(no_peer: bool):
+    """(m-explore's live node with the settings the live benches give it, '') or (None, why
+    it is not measured)."""
+    peer = None if no_peer else live_node()
+    if peer:
+        return [peer, '_known_init_poses:=false', '_merging_rate:=2.0', '_discovery_rate:=0.5',
+                '_estimation_rate:=1.0'], ''
+    return None, ('not measured (--no-peer)' if no_peer else
+                  'NOT measured: m-explore is not built (../shared/peers/mexplore/build.sh)')
+
+
+def growing_map(path: str) -> dict:
+    """A robot's whole map (``grid``) and, per cell, its distance in cells from the map's known
+    centre (``dist``; ``dmax``, the farthest known cell's): revealing the cells within a radius
+    that widens makes the map grow as a robot's would."""
+    import numpy as np
+
+    from multi_map_merge.core.mapio import load_map
+    g = load_map(path)
+    known = g.data >= 0
+    rr, cc = np.nonzero(known)
+    d = np.hypot(np.arange(g.height)[:, None] - rr.mean(), np.arange(g.width)[None, :] - cc.mean())
+    return {'grid': g, 'dist': d.astype(np.float32), 'dmax': float(d[known].max())}
+
+
+def bench_processes(spec: dict, tmp: str, port: int, build: bool):
+    """The map publisher's ``spec`` written to ``tmp``/publish.json, and the :class:`Processes`
+    of a run on a private master at ``port`` (another free one if taken): (processes, port)."""
+    with open(os.path.join(tmp, 'publish.json'), 'w') as f:
+        json.dump(spec, f)
+    port = port if port_free(port) else free_port()
+    return Processes(private_ros_env(ros_env(build), port, tmp), tmp), port
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     ap.add_argument('--robots', type=int, default=4,
@@ -257,33 +324,8 @@ def main():
         cells.append(g.width * g.height)
         # the publisher starts 2 s before the node: the late robots join --join-at after the node
         spec['robots'].append({'name': r, 'path': p, 'grow': grow, 'join_s': 0.0 if grow else a.join_at + 2.0})
-    with open(os.path.join(tmp, 'publish.json'), 'w') as f:
-        json.dump(spec, f)
-    port = a.port if port_free(a.port) else free_port()
-    # a private master on the loopback: works where the machine's own hostname does not resolve
-    env = dict(ros_env(not a.no_build), ROS_MASTER_URI='http://127.0.0.1:%d' % port, ROS_IP='127.0.0.1',
-               ROS_HOME=os.path.join(tmp, 'ros'), ROS_LOG_DIR=os.path.join(tmp, 'ros', 'log'))
-    env.pop('ROS_HOSTNAME', None)
-    os.environ.update(env)
-    procs = []
-
-    def start(cmd, log):
-        p = subprocess.Popen(cmd, env=env, stdout=open(os.path.join(tmp, log), 'w'), stderr=subprocess.STDOUT,
-                             start_new_session=True)
-        procs.append(p)
-        return p
-
-    def stop(ps):
-        for p in ps:
-            try:
-                os.killpg(p.pid, signal.SIGINT)
-            except ProcessLookupError:
-                pass
-        for p in ps:
-            try:
-                p.wait(10)
-            except subprocess.TimeoutExpired:
-                os.killpg(p.pid, signal.SIGKILL)
+    procs, port = bench_processes(spec, tmp, a.port, not a.no_build)
+    env, start, stop = procs.env, procs.start, procs.stop
 
     results = {'machine': machine(), 'robots': n, 'growing': a.robots, 'late': a.late, 'join_at_s': a.join_at,
                'map_cells_growing': int(sorted(cells[:a.robots])[a.robots // 2]) if a.robots else None,
@@ -317,13 +359,8 @@ def main():
         rospy.init_node('live_gap', anonymous=True)
         results['ours'] = run(['rosrun', 'multi_map_merge', 'map_merge_node', '_merge_rate:=2.0', '_tf_rate:=20.0'],
                               'ours.log')
-        peer = None if a.no_peer else live_node()
-        if peer:
-            results['mexplore'] = run([peer, '_known_init_poses:=false', '_merging_rate:=2.0',
-                                       '_discovery_rate:=0.5', '_estimation_rate:=1.0'], 'mexplore.log')
-        else:
-            results['mexplore'] = ('not measured (--no-peer)' if a.no_peer else
-                                   'NOT measured: m-explore is not built (../shared/peers/mexplore/build.sh)')
+        peer, why_not = mexplore_node(a.no_peer)
+        results['mexplore'] = run(peer, 'mexplore.log') if peer else why_not
     finally:
         stop(list(reversed(procs)))
     with open(os.path.join(a.out, 'live.json'), 'w') as f:

@@ -36,8 +36,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import signal
-import subprocess
 import sys
 import tempfile
 import time
@@ -46,8 +44,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 import memtree  # noqa: E402
 from inputs import world_map  # noqa: E402
-from live_gap import free_port, port_free, ros_env  # noqa: E402
-from peer import live_node  # noqa: E402
+from live_gap import bench_processes, growing_map, mexplore_node  # noqa: E402
 from report import machine  # noqa: E402
 
 from multi_map_merge.core.mapio import save_map  # noqa: E402
@@ -64,19 +61,14 @@ def publisher(spec):
     import rospy
 
     from multi_map_merge.core.grid import Grid
-    from multi_map_merge.core.mapio import load_map
     from multi_map_merge.core.transforms import cell_to_metric
     from multi_map_merge.ros.convert import NumpyGrid, grid_to_msg
     rospy.init_node('soak_maps', anonymous=True)
     rng = np.random.default_rng(0)
     robots = []
     for r in spec['robots']:
-        g = load_map(r['path'])
-        known = g.data >= 0
-        rr, cc = np.nonzero(known)
-        d = np.hypot(np.arange(g.height)[:, None] - rr.mean(), np.arange(g.width)[None, :] - cc.mean())
-        robots.append({'name': r['name'], 'grid': g, 'dist': d.astype(np.float32), 'dmax': float(d[known].max()),
-                       'pub': rospy.Publisher('/%s/map' % r['name'], NumpyGrid, queue_size=1, latch=True)})
+        robots.append(dict(growing_map(r['path']), name=r['name'],
+                           pub=rospy.Publisher('/%s/map' % r['name'], NumpyGrid, queue_size=1, latch=True)))
     wall_interval = spec['map_interval'] / spec['speed']
     t0 = time.monotonic()
     j = 0   # message slots: robot j % R sends its (j // R + 1)-th map at t0 + (j / R) * interval
@@ -231,32 +223,8 @@ def main():
         p = os.path.join(tmp, r + '.yaml')
         save_map(g, p)
         spec['robots'].append({'name': r, 'path': p})
-    with open(os.path.join(tmp, 'publish.json'), 'w') as f:
-        json.dump(spec, f)
-    port = a.port if port_free(a.port) else free_port()
-    env = dict(ros_env(not a.no_build), ROS_MASTER_URI='http://127.0.0.1:%d' % port, ROS_IP='127.0.0.1',
-               ROS_HOME=os.path.join(tmp, 'ros'), ROS_LOG_DIR=os.path.join(tmp, 'ros', 'log'))
-    env.pop('ROS_HOSTNAME', None)
-    os.environ.update(env)
-    procs = []
-
-    def start(cmd, log):
-        p = subprocess.Popen(cmd, env=env, stdout=open(os.path.join(tmp, log), 'w'), stderr=subprocess.STDOUT,
-                             start_new_session=True)
-        procs.append(p)
-        return p
-
-    def stop(ps):
-        for p in ps:
-            try:
-                os.killpg(p.pid, signal.SIGINT)
-            except ProcessLookupError:
-                pass
-        for p in ps:
-            try:
-                p.wait(10)
-            except subprocess.TimeoutExpired:
-                os.killpg(p.pid, signal.SIGKILL)
+    procs, port = bench_processes(spec, tmp, a.port, not a.no_build)
+    start, stop = procs.start, procs.stop
 
     seconds = a.minutes * 60.0 / a.speed
     grow_wall = a.grow_minutes * 60.0 / a.speed
@@ -302,14 +270,12 @@ def main():
             s['invalid_because'] = ('%s of %d robots merged at the end of the growth phase (< %d): the node did '
                                     'not do the work the soak is about' % (s['figures']['end_growth']['merged'],
                                                                            a.robots, a.robots - 1))
-        peer = None if a.no_peer else live_node()
+        peer, why_not = mexplore_node(a.no_peer)
         if peer:
-            results['mexplore'] = run([peer, '_known_init_poses:=false', '_merging_rate:=2.0',
-                                       '_discovery_rate:=0.5', '_estimation_rate:=1.0'], 'mexplore.log', lambda: None)
+            results['mexplore'] = run(peer, 'mexplore.log', lambda: None)
             results['mexplore']['summary']['note'] = 'm-explore reports no merged count: not checked'
         else:
-            results['mexplore'] = ('not measured (--no-peer)' if a.no_peer else
-                                   'NOT measured: m-explore is not built (../shared/peers/mexplore/build.sh)')
+            results['mexplore'] = why_not
     finally:
         stop(list(reversed(procs)))
     with open(os.path.join(a.out, 'soak.json'), 'w') as f:

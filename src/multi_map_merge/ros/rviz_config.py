@@ -45,32 +45,30 @@ def robots_rviz_config(template: str, robots: List[str]) -> str:
         raise ValueError('not valid ROS names: %s' % ' '.join(bad))
     cfg = yaml.safe_load(template)
     vm = cfg['Visualization Manager']
-    displays = vm['Displays']
-    proto = next((d for d in displays if _robot_map_display(d)), None)
+    vm['Displays'] = _one_per_robot(vm['Displays'], _robot_map_display, names,
+                                    {'Name': '%s map', 'Topic': '/%s/map'},
+                                    'a per-robot map display (rviz/Map on /<robot>/map)')
+    vm['Tools'] = _one_per_robot(vm['Tools'], _prior_tool, names, {'Topic': PRIOR_TOPIC},
+                                 'an rviz/SetInitialPose tool on /<robot>/map_merge/prior')
+    return yaml.safe_dump(cfg, sort_keys=False, default_flow_style=False, width=1 << 20)
+
+
+def _one_per_robot(entries: list, is_robot_entry, names: List[str], fields: dict, what: str) -> list:
+    """``entries`` (rviz displays or tools) with the template's per-robot ones replaced by one per
+    robot of ``names``, in their place: copies of the first, with each of ``fields`` set to its
+    pattern % robot."""
+    proto = next((e for e in entries if is_robot_entry(e)), None)
     if proto is None:
-        raise ValueError('the template has no per-robot map display (rviz/Map on /<robot>/map)')
-    at = displays.index(proto)
-    kept = [d for d in displays if not _robot_map_display(d)]
+        raise ValueError('the template has no %s' % what)
+    at = entries.index(proto)
+    kept = [e for e in entries if not is_robot_entry(e)]
     mine = []
     for r in names:
-        d = copy.deepcopy(proto)
-        d['Name'] = '%s map' % r
-        d['Topic'] = '/%s/map' % r
-        mine.append(d)
-    vm['Displays'] = kept[:at] + mine + kept[at:]
-    tools = vm['Tools']
-    proto_tool = next((t for t in tools if _prior_tool(t)), None)
-    if proto_tool is None:
-        raise ValueError('the template has no rviz/SetInitialPose tool on /<robot>/map_merge/prior')
-    at = tools.index(proto_tool)
-    others = [t for t in tools if not _prior_tool(t)]
-    priors = []
-    for r in names:
-        t = copy.deepcopy(proto_tool)
-        t['Topic'] = PRIOR_TOPIC % r
-        priors.append(t)
-    vm['Tools'] = others[:at] + priors + others[at:]
-    return yaml.safe_dump(cfg, sort_keys=False, default_flow_style=False, width=1 << 20)
+        e = copy.deepcopy(proto)
+        for k, pattern in fields.items():
+            e[k] = pattern % r
+        mine.append(e)
+    return kept[:at] + mine + kept[at:]
 
 
 def default_template() -> str:

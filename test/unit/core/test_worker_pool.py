@@ -37,13 +37,19 @@ if __name__ == '__main__':
 '''
 
 
-def test_workers_forked_when_single_threaded_else_forkserver(tmp_path):
+def run_script(tmp_path, text):
+    """``text`` run as a script in a fresh interpreter (a process of its own: what a pool does
+    at its start depends on the threads the process has); the last line it printed."""
     script = tmp_path / 'pool.py'
-    script.write_text(SCRIPT)
+    script.write_text(text)
     env = dict(os.environ, PYTHONPATH=os.path.abspath(SRC) + os.pathsep + os.environ.get('PYTHONPATH', ''))
     out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, env=env, timeout=120)
     assert out.returncode == 0, out.stderr[-2000:]
-    assert out.stdout.strip().splitlines()[-1] == "['fork', 'forkserver'] True True"
+    return out.stdout.strip().splitlines()[-1]
+
+
+def test_workers_forked_when_single_threaded_else_forkserver(tmp_path):
+    assert run_script(tmp_path, SCRIPT) == "['fork', 'forkserver'] True True"
 
 
 SCRIPT_AFTER_WARPS = r'''
@@ -72,9 +78,4 @@ if __name__ == '__main__':
 def test_workers_forked_after_opencv_started_its_threads(tmp_path):
     """A pool forked after OpenCV's own thread pool ran: the workers must not wait for threads
     that were not copied (OpenCV 4.2's pthreads pool hung a worker in setNumThreads)."""
-    script = tmp_path / 'after_warps.py'
-    script.write_text(SCRIPT_AFTER_WARPS)
-    env = dict(os.environ, PYTHONPATH=os.path.abspath(SRC) + os.pathsep + os.environ.get('PYTHONPATH', ''))
-    out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, env=env, timeout=120)
-    assert out.returncode == 0, out.stderr[-2000:]
-    assert out.stdout.strip().splitlines()[-1] == 'fork 4 2'
+    assert run_script(tmp_path, SCRIPT_AFTER_WARPS) == 'fork 4 2'
