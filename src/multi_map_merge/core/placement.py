@@ -26,6 +26,7 @@ import numpy as np
 
 from . import posegraph
 from .config import MergeConfig
+from .covariance import position_sigma
 from .links import SAME_LINK, Edge
 from .transforms import inverse, pose_distance, se2, xyyaw
 
@@ -136,11 +137,6 @@ def pin(config: MergeConfig, placements: Dict[str, Placement], edges: Links, ref
             continue
         p.cov = covs.get(n)
         p.weak = p.via == PRIOR or p.cov is None or 2.0 * position_sigma(p.cov) > config.max_position_sigma
-
-
-def position_sigma(cov: np.ndarray) -> float:
-    """Standard deviation (metres) of a pose's position along its worst direction."""
-    return float(math.sqrt(max(0.0, float(np.linalg.eigvalsh(np.asarray(cov)[:2, :2])[-1]))))
 
 
 def add_priors(config: MergeConfig, best: Dict[str, Placement], names: Iterable[str], ref: str) -> None:
