@@ -101,6 +101,7 @@ def _grid_cells(A: np.ndarray, pa: PairInput, ch: PairInput) -> np.ndarray:
 # pairs), so what is derived from a map is derived once per map version in each process.
 _EXTRACTORS: Dict[tuple, FeatureExtractor] = {}
 _DERIVED: Dict[tuple, object] = {}
+_DERIVED_OWNER: object = None
 
 
 def compute_features(config: MergeConfig, levels: np.ndarray, factor: Optional[int] = None) -> Features:
@@ -138,8 +139,14 @@ def _at_one_scale(config: MergeConfig, pa: PairInput, ch: PairInput) -> Tuple[Fe
 def _derived(what: str, p: PairInput, make):
     """``make(p)``, cached per (merger, robot, resolution) in this process for the map's latest
     version only: maps that grow all the time would otherwise leave every older version's wall
-    masks here until the cache's bound."""
-    key = (what, p.owner, p.name, p.resolution)
+    masks here until the cache's bound. And for one merger only (the node has one): a process
+    that served a merger before (a test, a benchmark's cold cycles, a merger made anew) would
+    otherwise keep that merger's data until the bound."""
+    global _DERIVED_OWNER
+    if p.owner != _DERIVED_OWNER:
+        _DERIVED.clear()
+        _DERIVED_OWNER = p.owner
+    key = (what, p.name, p.resolution)
     v = _DERIVED.get(key)
     if v is None or v[0] != p.version:
         if len(_DERIVED) > 256:
@@ -189,11 +196,15 @@ def contradicts_prior(config: MergeConfig, pa: PairInput, ch: PairInput, A: np.n
     return ''
 
 
-def refined(config: MergeConfig, pa: PairInput, ch: PairInput, A: np.ndarray) -> np.ndarray:
-    """ICP polish of ``A`` on the walls; it may only polish, never move the estimate away."""
+def refined(config: MergeConfig, pa: PairInput, ch: PairInput, A: np.ndarray,
+            max_distance: Optional[float] = None) -> np.ndarray:
+    """ICP polish of ``A`` on the walls; it may only polish, never move the estimate away.
+    ``max_distance``: ICP's first pairing distance (cells), when less than RANSAC's threshold
+    will do (a pose known to within a cell)."""
     field_a = _field(pa)
     pts_b = _wall_points(ch)
-    A2 = refine(field_a, pts_b, A, max_distance=config.ransac_threshold)
+    gate = config.ransac_threshold if max_distance is None else min(max_distance, config.ransac_threshold)
+    A2 = refine(field_a, pts_b, A, max_distance=gate)
     if A2 is None:
         return A
     # how far the walls moved (at their centre: the grid's corner can be metres away, where a
@@ -249,7 +260,7 @@ def _pin(config: MergeConfig, pa: PairInput, ch: PairInput, r: PairResult) -> No
         return
     cov = p.cov
     if p.cost_best < p.cost - covariance.BETTER_COST:
-        A2 = refined(config, pa, ch, p.A) if config.refine else p.A
+        A2 = refined(config, pa, ch, p.A, 1.5) if config.refine else p.A
         cost2 = covariance.mean_cost(field, pts, A2)
         if cost2 is not None and cost2 < p.cost - covariance.BETTER_COST:
             tol = config.agreement_tolerance

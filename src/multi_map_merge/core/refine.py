@@ -20,7 +20,17 @@ WALL_FIELD_MARGIN = 4   # cells beyond the known box where nearest walls are sti
 
 
 class WallField:
-    """Nearest occupied cell of a grid for any cell of its known box (built once per grid)."""
+    """Nearest occupied cell of a grid for any cell of its known box (built once per grid).
+
+    Attributes:
+        dist_flat: float32 distance (cells) to the nearest wall of each cell of the box, row
+            major, plus one entry past the end (infinite) for points outside the box.
+        dx_flat, dy_flat: int8 offset (cells) from each cell to that wall; exact within
+            OFFSET_REACH cells, which is all ICP looks at (its gates are a few cells).
+        offset: (col, row) of the box's first cell in the grid; shape: the box's (rows, cols).
+    """
+
+    OFFSET_REACH = 127
 
     def __init__(self, levels: np.ndarray, margin: int = WALL_FIELD_MARGIN):
         box = known_bbox(levels, margin)
@@ -36,14 +46,18 @@ class WallField:
         src = np.where(occ, 0, 255).astype(np.uint8)
         dist, labels = cv2.distanceTransformWithLabels(
             src, cv2.DIST_L2, 5, labelType=cv2.DIST_LABEL_PIXEL)
-        # Labels number the zero (occupied) pixels in raster order, from 1.
+        # Labels number the zero (occupied) pixels in raster order, from 1. A cell keeps the
+        # offset to its wall, 2 bytes instead of a 4-byte label (memory per parent map).
         rr, cc = np.nonzero(occ)
-        # flat per-cell tables with one extra entry past the end for points outside the box
-        # (no wall: infinitely far, label 0), and the wall cell of each label (grid's cells)
+        h, w = occ.shape
+        lab = labels.ravel() - 1
+        del labels
+        reach = self.OFFSET_REACH
+        flat = np.arange(h * w, dtype=np.int64)
+        self.dx_flat = np.append(np.clip(cc[lab] - flat % w, -reach, reach), 0).astype(np.int8)
+        self.dy_flat = np.append(np.clip(rr[lab] - flat // w, -reach, reach), 0).astype(np.int8)
+        del flat, lab
         self.dist_flat = np.append(dist.ravel(), np.float32(np.inf))
-        self.labels_flat = np.append(labels.ravel(), 0).astype(np.int32)
-        self.wall_x = np.append(np.float64(-1.0), cc + float(c0))
-        self.wall_y = np.append(np.float64(-1.0), rr + float(r0))
         self.shape = occ.shape
 
     def index(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -55,6 +69,12 @@ class WallField:
         # unsigned compare: negative coordinates wrap to huge values and fail too
         valid = (ix.astype(np.uint64) < w) & (iy.astype(np.uint64) < h)
         return np.where(valid, iy * w + ix, h * w)
+
+    def walls(self, idx: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
+        """(x, y) grid cells of the walls nearest to the cells of flat indices ``idx`` (inside
+        the box, within OFFSET_REACH cells of a wall)."""
+        iy, ix = np.divmod(idx, self.shape[1])
+        return (ix + self.dx_flat.take(idx) + self.offset[0], iy + self.dy_flat.take(idx) + self.offset[1])
 
 
 def occupied_points(levels: np.ndarray, box: Optional[Tuple[int, int, int, int]] = None,
@@ -87,6 +107,8 @@ def refine(field: WallField, src_pts: np.ndarray, A: np.ndarray, max_distance: f
     if not field.ok or src_pts.shape[0] < min_pairs:
         return None
     cur = A.copy()
+    # (the field knows each cell's wall within OFFSET_REACH cells only)
+    max_distance = min(max_distance, float(field.OFFSET_REACH))
     gates = [max_distance] + [g for g in (4.0, 3.0, 2.0, 1.5, 1.0) if g < max_distance]
     # the wide gates only bring the walls within reach: a third of the points does that as
     # well (most iterations happen there); the tight gates that set the result use them all
@@ -105,8 +127,8 @@ def refine(field: WallField, src_pts: np.ndarray, A: np.ndarray, max_distance: f
             sel = np.flatnonzero(field.dist_flat.take(idx) <= gate)
             if sel.size < need:
                 return cur if k > 0 else None
-            lab = field.labels_flat.take(idx.take(sel))
-            step = rigid_from_xy(px.take(sel), py.take(sel), field.wall_x.take(lab), field.wall_y.take(lab))
+            wx, wy = field.walls(idx.take(sel))
+            step = rigid_from_xy(px.take(sel), py.take(sel), wx, wy)
             cur = step @ cur
             if abs(step[0, 2]) < 0.01 and abs(step[1, 2]) < 0.01 and abs(step[1, 0]) < 1e-4:
                 break

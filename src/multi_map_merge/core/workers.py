@@ -148,31 +148,69 @@ class PairWorkers:
 
 
 def _task(fn, *args):
-    """``fn(*args)`` in a worker, its end noted for :func:`_trim_when_idle`."""
+    """``fn(*args)`` in a worker, its end noted for :func:`_trim_when_idle`; the heap trimmed
+    after it when it left much of it free (:func:`_trim_if_free`)."""
     global _BUSY, _LAST
     _BUSY = True
     try:
         return fn(*args)
     finally:
+        _trim_if_free(TRIM_FREE_BYTES)
         _BUSY, _LAST = False, time.monotonic()
 
 
 _BUSY = False
 _LAST = 0.0
 IDLE_TRIM_S = 1.0
+# free heap (bytes) a task may leave behind before the worker hands it back at once
+TRIM_FREE_BYTES = 2 << 20
+
+
+def _malloc_trim():
+    """glibc's ``malloc_trim`` and a function giving the heap's free bytes (``mallinfo2``, or
+    ``mallinfo`` before glibc 2.33: Ubuntu 20.04), or None elsewhere."""
+    import ctypes
+    try:
+        libc = ctypes.CDLL(None)
+        trim = libc.malloc_trim
+    except (OSError, AttributeError):
+        return None
+    wide = hasattr(libc, 'mallinfo2')
+    field = ctypes.c_size_t if wide else ctypes.c_int
+
+    class MallInfo(ctypes.Structure):
+        _fields_ = [(n, field) for n in ('arena', 'ordblks', 'smblks', 'hblks', 'hblkhd', 'usmblks',
+                                         'fsmblks', 'uordblks', 'fordblks', 'keepcost')]
+    info = libc.mallinfo2 if wide else libc.mallinfo
+    info.restype = MallInfo
+    return trim, lambda: info().fordblks
+
+
+_TRIM = None
+
+
+def _trim_if_free(limit: int) -> None:
+    """Hand the heap's free memory back to the system when more than ``limit`` bytes of it are
+    free: a task that described a map (AKAZE's scale space: about 170 bytes per pixel) or
+    searched a big pair leaves megabytes free that glibc keeps; the next task would reuse only
+    part of them, and the worker's footprint would be its largest task's for good. Only then:
+    trimming after every task would fault the next task's memory in again (a third slower)."""
+    global _TRIM
+    if _TRIM is None:
+        _TRIM = _malloc_trim() or False
+    if _TRIM and _TRIM[1]() > limit:
+        _TRIM[0](0)
 
 
 def _trim_when_idle() -> None:
     """Hand the memory a worker freed back to the system once it has been idle a second. glibc
     keeps freed heap memory (and raises its mmap threshold after a big array is freed, so later
     big arrays come from the heap too): a worker would hold its largest task's working set for
-    good. Not after every task: the next task would fault all of it in again (a third slower)."""
-    import ctypes
-    try:
-        libc = ctypes.CDLL(None)
-        trim = libc.malloc_trim   # glibc only
-    except (OSError, AttributeError):
+    good (what a task left under :data:`TRIM_FREE_BYTES`, and what the heap's fragments hold)."""
+    found = _malloc_trim()
+    if found is None:
         return
+    trim = found[0]
     done = _LAST
     while True:
         time.sleep(IDLE_TRIM_S / 2)

@@ -163,7 +163,7 @@ RULES: Dict[str, Tuple[Callable[[Any], Any], str]] = {
     'feature_cells': _int(0),
     'match_candidates': _int(1),
     'match_ratio': _float(0.0, 1.0, lo_open=True),
-    'ransac_threshold': _float(0.0, None, lo_open=True),
+    'ransac_threshold': _float(0.0, 100.0, lo_open=True),
     'ransac_iterations': _int(1),
     'ransac_hypotheses': _int(1),
     'min_matches': _int(0),

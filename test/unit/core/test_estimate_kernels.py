@@ -162,3 +162,51 @@ def test_workers_run_blas_on_one_thread():
     if out.stdout.strip() == 'no openblas':
         pytest.skip('numpy\'s BLAS here is not OpenBLAS')
     assert out.stdout.strip() == '1'
+
+
+@pytest.mark.parametrize('seed', range(3))
+def test_wall_field_offsets_name_the_labelled_nearest_walls(seed):
+    """The wall field keeps each cell's offset to its nearest wall (int8) instead of the
+    distance transform's label (int32): the wall found is the labelled one, for every cell."""
+    import cv2
+
+    from multi_map_merge.core.refine import WallField
+    parent, _, _ = _room_grids(seed)
+    f = WallField(parent)
+    r0, c0 = int(f.offset[1]), int(f.offset[0])
+    h, w = f.shape
+    occ = parent[r0:r0 + h, c0:c0 + w] == OCCUPIED
+    _, labels = cv2.distanceTransformWithLabels(np.where(occ, 0, 255).astype(np.uint8), cv2.DIST_L2, 5,
+                                                labelType=cv2.DIST_LABEL_PIXEL)
+    rr, cc = np.nonzero(occ)
+    idx = np.arange(h * w)
+    wx, wy = f.walls(idx)
+    near = f.dist_flat[:-1] <= 20
+    assert near.sum() > 0.5 * h * w
+    lab = labels.ravel()[near] - 1
+    assert np.array_equal(wx[near], cc[lab] + c0)
+    assert np.array_equal(wy[near], rr[lab] + r0)
+    # the cells of those walls are walls of the grid, at the distance the field gives
+    assert np.all(parent[wy[near].astype(int), wx[near].astype(int)] == OCCUPIED)
+    d = np.hypot(wx[near] - (idx[near] % w + c0), wy[near] - (idx[near] // w + r0))
+    assert np.allclose(d, f.dist_flat[:-1][near], atol=0.05 * d.max())
+
+
+def test_cost_table_in_16_bits_is_the_truncated_squared_distance():
+    """covariance.CostField's uint16 table: min(distance, TRUNCATE)^2 to 1/COST_SCALE."""
+    import cv2
+
+    from multi_map_merge.core import covariance
+    parent, _, _ = _room_grids(0)
+    field = covariance.CostField(parent)
+    box = known_bbox(parent)
+    occ = parent[box[0]:box[1], box[2]:box[3]] == OCCUPIED
+    dist = cv2.distanceTransform(np.where(occ, 0, 255).astype(np.uint8), cv2.DIST_L2, 5)
+    pad = int(box[2] - field.offset[0])
+    got = field.cost[pad:pad + occ.shape[0], pad:pad + occ.shape[1]] / covariance.COST_SCALE
+    want = np.minimum(dist, covariance.TRUNCATE) ** 2
+    assert field.cost.dtype == np.uint16
+    assert np.abs(got - want).max() <= 0.5 / covariance.COST_SCALE + 1e-6
+    assert want.max() == covariance.TRUNCATE ** 2   # (the truncation is exercised)
+    # the padding costs the truncation
+    assert field.cost[0, 0] == field.big and field.big / covariance.COST_SCALE == pytest.approx(9.0, abs=1e-3)

@@ -79,3 +79,65 @@ def test_workers_forked_after_opencv_started_its_threads(tmp_path):
     """A pool forked after OpenCV's own thread pool ran: the workers must not wait for threads
     that were not copied (OpenCV 4.2's pthreads pool hung a worker in setNumThreads)."""
     assert run_script(tmp_path, SCRIPT_AFTER_WARPS) == 'fork 4 2'
+
+
+TRIM_SCRIPT = r'''
+import ctypes
+from multi_map_merge.core import workers
+
+libc = ctypes.CDLL(None)
+libc.malloc.restype = ctypes.c_void_p
+libc.free.argtypes = [ctypes.c_void_p]
+
+def rss_mb():
+    return int(open('/proc/self/statm').read().split()[1]) * 4096 / 1e6
+
+def leave_free_heap():
+    """20 MB in 1 kB blocks, written, then freed but the last (at the heap's top): glibc keeps
+    the memory below a block in use."""
+    blocks = [libc.malloc(1000) for _ in range(20000)]
+    for b in blocks:
+        ctypes.memset(b, 1, 1000)
+    for b in blocks[:-1]:
+        libc.free(b)
+
+before = rss_mb()
+leave_free_heap()
+kept = rss_mb() - before          # without a trim
+workers._task(leave_free_heap)    # the same in a task: trimmed after it
+after_task = rss_mb() - before
+print('%.1f %.1f' % (kept, after_task))
+'''
+
+
+def test_a_task_that_leaves_megabytes_free_hands_them_back(tmp_path):
+    """glibc keeps a task's freed heap; a worker trims it after a task that left more than
+    TRIM_FREE_BYTES free (its footprint would otherwise be its largest task's)."""
+    import ctypes
+
+    import pytest
+    if not hasattr(ctypes.CDLL(None), 'malloc_trim'):
+        pytest.skip('not glibc: no malloc_trim')
+    kept, after_task = map(float, run_script(tmp_path, TRIM_SCRIPT).split())
+    assert kept > 15        # the premise: freed, not handed back
+    assert after_task < kept - 12
+
+
+def test_derived_data_of_a_former_merger_is_dropped(house):
+    """A process keeps the derived data (wall fields, masks) of one merger: a new merger's
+    maps replace an old merger's, whose data would otherwise stay until the cache's bound."""
+    from multi_map_merge.core import pair
+    from multi_map_merge.core.config import MergeConfig
+    from multi_map_merge.core.merger import MapMerger
+    first = MapMerger(MergeConfig(workers=1))
+    for k in range(3):
+        first.update_map('r%d' % k, house)
+    first.estimate()
+    n_first = len(pair._DERIVED)
+    assert n_first > 0 and pair._DERIVED_OWNER == first._workers.uid
+    second = MapMerger(MergeConfig(workers=1))
+    second.update_map('r0', house)
+    second.update_map('r1', house)
+    second.estimate()
+    assert 0 < len(pair._DERIVED) < n_first
+    assert pair._DERIVED_OWNER == second._workers.uid
