@@ -114,6 +114,15 @@ def compute_features(config: MergeConfig, levels: np.ndarray, factor: Optional[i
     return fe(levels, factor)
 
 
+def describe_version(config: MergeConfig, levels: np.ndarray, owner: str, name: str, version: int) -> Features:
+    """(1) features of version ``version`` of robot ``name``'s map (of merger ``owner``), as
+    :func:`compute_features`; what this process derived from the map's former versions is
+    dropped first: it is stale, and a description is a worker's largest working set (AKAZE's
+    scale space), so the two should not be held at once."""
+    _forget_other_versions(owner, name, version)
+    return compute_features(config, levels)
+
+
 DESCRIBED_AT_MOST = 16   # x feature_cells: the largest image a map is described on to match a finer one
 
 
@@ -142,10 +151,7 @@ def _derived(what: str, p: PairInput, make):
     masks here until the cache's bound. And for one merger only (the node has one): a process
     that served a merger before (a test, a benchmark's cold cycles, a merger made anew) would
     otherwise keep that merger's data until the bound."""
-    global _DERIVED_OWNER
-    if p.owner != _DERIVED_OWNER:
-        _DERIVED.clear()
-        _DERIVED_OWNER = p.owner
+    _forget_other_versions(p.owner)
     key = (what, p.name, p.resolution)
     v = _DERIVED.get(key)
     if v is None or v[0] != p.version:
@@ -154,6 +160,18 @@ def _derived(what: str, p: PairInput, make):
         _DERIVED.pop(key, None)   # the old version freed before the new one is made
         v = _DERIVED[key] = (p.version, make(p))
     return v[1]
+
+
+def _forget_other_versions(owner: str, name: Optional[str] = None, version: Optional[int] = None) -> None:
+    """Drop the derived data of every merger but ``owner``, and of ``name``'s map in versions
+    other than ``version``."""
+    global _DERIVED_OWNER
+    if owner != _DERIVED_OWNER:
+        _DERIVED.clear()
+        _DERIVED_OWNER = owner
+    elif name is not None:
+        for key in [k for k, v in _DERIVED.items() if k[1] == name and v[0] != version]:
+            del _DERIVED[key]
 
 
 def _known(p: PairInput) -> tuple:

@@ -23,7 +23,7 @@ import numpy as np
 
 from .config import MergeConfig
 from .features import Features
-from .pair import PairInput, PairResult, align_pair, compute_features, crop_known
+from .pair import PairInput, PairResult, align_pair, crop_known, describe_version
 
 if TYPE_CHECKING:   # (the merger imports this module)
     from .merger import RobotMap
@@ -63,7 +63,7 @@ class PairWorkers:
         """(1) features of a map (in its crop's cells), computed once per map version."""
         cached = self._features.get(m.name)
         if cached is None or cached[0] != m.key:
-            self._features[m.name] = (m.key, compute_features(self.config, self.crop(m)[0]))
+            self._features[m.name] = (m.key, self._describe(m))
         return self._features[m.name][1]
 
     def _stale(self, maps: Dict[str, RobotMap]) -> List[RobotMap]:
@@ -77,8 +77,12 @@ class PairWorkers:
             return
         c = self.config
         levels = [self.crop(m)[0] for m in todo]
-        for m, f in zip(todo, self.map(compute_features, [c] * len(todo), levels)):
+        for m, f in zip(todo, self.map(describe_version, [c] * len(todo), levels, [self.uid] * len(todo),
+                                       [m.name for m in todo], [m.version for m in todo])):
             self._features[m.name] = (m.key, f)
+
+    def _describe(self, m: RobotMap) -> Features:
+        return describe_version(self.config, self.crop(m)[0], self.uid, m.name, m.version)
 
     def input(self, m: RobotMap) -> PairInput:
         """A map as one side of a pair (its crop and features)."""
@@ -114,7 +118,8 @@ class PairWorkers:
             return self.map(align_pair, [c] * len(todo), [inputs[a] for a, _ in todo],
                             [inputs[b] for _, b in todo], [seeds[ab] for ab in todo])
         from concurrent.futures import as_completed
-        waiting = {pool.submit(_task, compute_features, c, self.crop(m)[0]): m for m in stale}
+        waiting = {pool.submit(_task, describe_version, c, self.crop(m)[0], self.uid, m.name, m.version): m
+                   for m in stale}
         ready = set(maps) - {m.name for m in stale}
         queued: Dict[Tuple[str, str], object] = {}
         inputs: Dict[str, PairInput] = {}

@@ -141,3 +141,24 @@ def test_derived_data_of_a_former_merger_is_dropped(house):
     second.estimate()
     assert 0 < len(pair._DERIVED) < n_first
     assert pair._DERIVED_OWNER == second._workers.uid
+
+
+def test_describing_a_new_version_drops_what_was_derived_from_the_former(house):
+    """A map's new version is described with its former version's wall fields and masks
+    already dropped (stale; a description is a worker's largest working set); the other
+    maps' are kept."""
+    import numpy as np
+
+    from multi_map_merge.core import pair
+    from multi_map_merge.core.config import MergeConfig
+    from multi_map_merge.core.merger import MapMerger
+    m = MapMerger(MergeConfig(workers=1))
+    for k in range(3):
+        m.update_map('r%d' % k, house)
+    m.estimate()
+    names = {key[1] for key in pair._DERIVED}
+    assert {'r0', 'r1'} <= names
+    version = {key[1]: v[0] for key, v in pair._DERIVED.items()}
+    pair.describe_version(MergeConfig(), np.zeros((50, 50), np.uint8), m._workers.uid, 'r0', version['r0'] + 1)
+    assert not any(key[1] == 'r0' for key in pair._DERIVED)
+    assert {key[1] for key in pair._DERIVED} == names - {'r0'}
