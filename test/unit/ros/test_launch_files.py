@@ -212,12 +212,19 @@ def test_multi_slam_defaults_and_names():
 
 
 def test_multi_slam_on_the_robots():
-    """slam_on:=robot: each robot's nodes on a <machine> of that robot (address, user, env loader)."""
+    """slam_on:=robot: each robot's nodes on a <machine> of that robot (address, ssh port, user, env
+    loader, the time its roslaunch has to register)."""
     cfg = load('turtlebot3_multi_slam.launch', URDF, 'robot_count:=2', 'slam_on:=robot',
                'first_tb3_address:=10.0.0.21', 'second_tb3_address:=burger2.local')
     check_robot_base(cfg, ['tb3_0', 'tb3_1'], machine=True)
     assert cfg.machines['tb3_0'].address == '10.0.0.21'
     assert cfg.machines['tb3_1'].address == 'burger2.local'
+    assert [(m.ssh_port, m.timeout) for m in (cfg.machines['tb3_0'], cfg.machines['tb3_1'])] == [(22, 30.0)] * 2
+    cfg = load('turtlebot3_multi_slam.launch', URDF, 'robot_count:=2', 'slam_on:=robot', 'robot_ssh_port:=2222',
+               'robot_timeout:=45', 'robot_user:=tb3', 'env_loader:=/opt/robot/env.sh')
+    for r in ('tb3_0', 'tb3_1'):
+        m = cfg.machines[r]
+        assert (m.address, m.ssh_port, m.timeout, m.user, m.env_loader) == (r, 2222, 45.0, 'tb3', '/opt/robot/env.sh')
     (merger,) = nodes(cfg, 'map_merge_node')
     assert merger.machine_name is None            # the merger stays on the base station
     with pytest.raises(roslaunch.core.RLException):   # a typo is an error, not SLAM somewhere

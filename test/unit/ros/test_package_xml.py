@@ -25,7 +25,7 @@ MODULE_KEYS = {
     'geometry_msgs': 'geometry_msgs', 'sensor_msgs': 'sensor_msgs', 'rosgraph_msgs': 'rosgraph_msgs',
     'diagnostic_msgs': 'diagnostic_msgs', 'diagnostic_updater': 'diagnostic_updater', 'std_srvs': 'std_srvs',
     'visualization_msgs': 'visualization_msgs', 'std_msgs': 'std_msgs',
-    'rviz': 'rviz', 'python_qt_binding': 'python_qt_binding',
+    'rviz': 'rviz', 'python_qt_binding': 'python_qt_binding', 'paramiko': 'python3-paramiko',
 }
 # optional: imported only where ImportError is handled, and deliberately not declared
 OPTIONAL = {'open3d': 'python3-open3d-pip'}
