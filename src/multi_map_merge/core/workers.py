@@ -63,7 +63,8 @@ class PairWorkers:
         """(1) features of a map (in its crop's cells), computed once per map version."""
         cached = self._features.get(m.name)
         if cached is None or cached[0] != m.key:
-            self._features[m.name] = (m.key, self._describe(m))
+            self._features[m.name] = (m.key, describe_version(self.config, self.crop(m)[0], self.uid,
+                                                              m.name, m.version))
         return self._features[m.name][1]
 
     def _stale(self, maps: Dict[str, RobotMap]) -> List[RobotMap]:
@@ -80,9 +81,6 @@ class PairWorkers:
         for m, f in zip(todo, self.map(describe_version, [c] * len(todo), levels, [self.uid] * len(todo),
                                        [m.name for m in todo], [m.version for m in todo])):
             self._features[m.name] = (m.key, f)
-
-    def _describe(self, m: RobotMap) -> Features:
-        return describe_version(self.config, self.crop(m)[0], self.uid, m.name, m.version)
 
     def input(self, m: RobotMap) -> PairInput:
         """A map as one side of a pair (its crop and features)."""

@@ -12,12 +12,12 @@ from typing import Dict, Optional
 import diagnostic_updater
 import numpy as np
 import rospy
-import tf2_ros
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from nav_msgs.msg import MapMetaData
 from nav_msgs.srv import GetMap, GetMapResponse
 from std_msgs.msg import Empty
 from std_srvs.srv import Trigger, TriggerResponse
+from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import MarkerArray
 
 from ..core.config import MergeConfig
@@ -83,7 +83,10 @@ class MergeNode:
         self._map_pub = rospy.Publisher(config.merged_map_topic, NumpyGrid, queue_size=1, latch=True)
         self._meta_pub = rospy.Publisher(config.merged_map_topic + '_metadata', MapMetaData,
                                          queue_size=1, latch=True)
-        self._tf = tf2_ros.TransformBroadcaster()
+        # /tf as tf2_ros's TransformBroadcaster sends it (it is this publisher), without importing
+        # tf2_ros, whose C++ bindings add to the node's memory (docs/measurements.md); they are
+        # loaded only to look up a prior given in another frame
+        self._tf_pub = rospy.Publisher('/tf', TFMessage, queue_size=100)
         # rviz: where each robot started and the kept links (latched, sent when they change)
         self._markers_pub = rospy.Publisher('~markers', MarkerArray, queue_size=1, latch=True)
         self._markers_key = None
@@ -220,6 +223,7 @@ class MergeNode:
         merged = self.cfg.merged_map_frame.lstrip('/')
         if not frame or frame == merged:
             return T
+        import tf2_ros
         if self._tf_buffer is None:
             self._tf_buffer = tf2_ros.Buffer()
             self._tf_listener = tf2_ros.TransformListener(self._tf_buffer)
@@ -467,7 +471,7 @@ class MergeNode:
             if child and child != self.cfg.merged_map_frame:
                 out.append(transform_msg(pl.T, self.cfg.merged_map_frame, child, now))
         if out:
-            self._tf.sendTransform(out)
+            self._tf_pub.publish(TFMessage(out))
 
     def _update_diagnostics(self, _event) -> None:
         """Give every robot seen a status of its own, then let the updater publish (it does at
