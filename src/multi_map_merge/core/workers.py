@@ -192,17 +192,25 @@ def _malloc_trim():
 _TRIM = None
 
 
+def _trim_functions():
+    """:func:`_malloc_trim`'s pair, looked up once per process (False where there is none)."""
+    global _TRIM
+    if _TRIM is None:
+        _TRIM = _malloc_trim() or False
+    return _TRIM
+
+
 def _trim_if_free(limit: int) -> None:
     """Hand the heap's free memory back to the system when more than ``limit`` bytes of it are
     free: a task that described a map (AKAZE's scale space: about 170 bytes per pixel) or
     searched a big pair leaves megabytes free that glibc keeps; the next task would reuse only
     part of them, and the worker's footprint would be its largest task's for good. Only then:
-    trimming after every task would fault the next task's memory in again (a third slower)."""
-    global _TRIM
-    if _TRIM is None:
-        _TRIM = _malloc_trim() or False
-    if _TRIM and _TRIM[1]() > limit:
-        _TRIM[0](0)
+    trimming after every task would fault the next task's memory in again (a third slower).
+    Asking is cheap (``mallinfo`` walks the arena's bins, microseconds against a task's
+    milliseconds), so it is asked after every task."""
+    found = _trim_functions()
+    if found and found[1]() > limit:
+        found[0](0)
 
 
 def _trim_when_idle() -> None:
@@ -210,8 +218,8 @@ def _trim_when_idle() -> None:
     keeps freed heap memory (and raises its mmap threshold after a big array is freed, so later
     big arrays come from the heap too): a worker would hold its largest task's working set for
     good (what a task left under :data:`TRIM_FREE_BYTES`, and what the heap's fragments hold)."""
-    found = _malloc_trim()
-    if found is None:
+    found = _trim_functions()
+    if not found:
         return
     trim = found[0]
     done = _LAST
