@@ -449,3 +449,36 @@ def test_team_bags_gmapping_prefixes_each_robot_onto_one_clock():
         assert params['/tb3_%d/slam_gmapping/odom_frame' % k] == 'tb3_%d/odom' % k
         assert params['/tb3_%d/slam_gmapping/map_frame' % k] == 'tb3_%d/map' % k
     assert params['/use_sim_time'] is True
+
+
+def _move_base_node(xml_text, robot_arg=None):
+    """(node attributes, [(rosparam file name, ns)], [(param, value)], remaps) of the move_base
+    node in a launch file's text; ``robot_arg``: the value of $(arg robot), $(arg model) burger."""
+    import xml.etree.ElementTree as ET
+    if robot_arg is not None:
+        xml_text = xml_text.replace('$(arg robot)', robot_arg).replace('$(arg model)', 'burger')
+    (node,) = [n for n in ET.fromstring(xml_text).iter('node') if n.get('type') == 'move_base']
+    files = [(os.path.basename(r.get('file')), r.get('ns')) for r in node.iter('rosparam')]
+    params = [(p.get('name'), p.get('value')) for p in node.iter('param')]
+    attrs = {k: v for k, v in node.attrib.items() if k != 'output'}
+    return attrs, files, params, [r.attrib for r in node.iter('remap')]
+
+
+def test_readme_move_base_snippet_is_what_the_rostest_runs():
+    """The README's move_base snippet (section "Navigating on the merged map") and
+    test/ros/move_base_merged.launch, which test/ros/move_base_merged.test runs live where
+    move_base is installed, set the same parameters, load the same ROBOTIS files."""
+    with open(os.path.join(REPO, 'README.md')) as f:
+        readme = f.read()
+    section = readme[readme.index('### Navigating on the merged map'):]
+    snippet = section[section.index('```') + 3:]
+    snippet = snippet[:snippet.index('```')]
+    with open(os.path.join(REPO, 'test', 'ros', 'move_base_merged.launch')) as f:
+        launch = f.read()
+    ours = _move_base_node(snippet)
+    tested = _move_base_node(launch, robot_arg='tb3_1')
+    assert ours == tested
+    attrs, files, params, remaps = ours
+    assert attrs.get('clear_params') == 'true'
+    assert ('costmap_common_params_burger.yaml', 'global_costmap') in files
+    assert dict(params)['global_costmap/map_topic'] == '/map'

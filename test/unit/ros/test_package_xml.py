@@ -26,6 +26,7 @@ MODULE_KEYS = {
     'diagnostic_msgs': 'diagnostic_msgs', 'diagnostic_updater': 'diagnostic_updater', 'std_srvs': 'std_srvs',
     'visualization_msgs': 'visualization_msgs', 'std_msgs': 'std_msgs',
     'rviz': 'rviz', 'python_qt_binding': 'python_qt_binding', 'paramiko': 'python3-paramiko',
+    'actionlib': 'actionlib', 'actionlib_msgs': 'actionlib_msgs', 'move_base_msgs': 'move_base_msgs',
 }
 # optional: imported only where ImportError is handled, and deliberately not declared
 OPTIONAL = {'open3d': 'python3-open3d-pip'}
