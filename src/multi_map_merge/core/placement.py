@@ -7,7 +7,7 @@ Five steps, in this order (:meth:`merger.MapMerger._place` runs them):
 2. :func:`graph_poses`: where the links form cycles, an SE(2) pose graph places every robot by
    all verified links at once (a chain adds up its links' errors, the graph averages them,
    each link weighed by the information of its covariance), used only if every link agrees
-   with its solution within GRAPH_GATE.
+   with its solution: within GRAPH_GATE, or within its own covariance (GRAPH_GATE_CHI2).
 3. :func:`add_priors`: robots with no chain, placed at their configured initial pose when
    those are trusted.
 4. :func:`hysteresis`: per robot the kept placement stays unless the new one is more reliable
@@ -33,6 +33,11 @@ from .transforms import inverse, pose_distance, se2, xyyaw
 # a pose graph whose result disagrees with one of its links by more than this (metres,
 # radians) is not used: the chain of most reliable links places the robots instead
 GRAPH_GATE = (0.3, math.radians(3.0))
+# ... unless the link has a covariance that explains the disagreement: its squared Mahalanobis
+# distance under this (chi-square, 3 dof, 99.9%). A link through a corridor is loose along it:
+# the graph pulls it along by the other links' pinning, which is what weighing by information
+# is for; a link wrong across its walls stays far outside its covariance and still vetoes
+GRAPH_GATE_CHI2 = 16.27
 # the via of a robot placed at its configured initial pose
 PRIOR = 'initial_pose'
 
@@ -57,6 +62,9 @@ class Placement:
     # weakly pinned: 2-sigma position (worst direction) over ``max_position_sigma``, or placed
     # at its prior (no link pins it)
     weak: bool = False
+    # 3x3 pose its chain of links gives (T before the pose graph moved it): what
+    # :func:`chain_holds` checks the links against later
+    chain_T: Optional[np.ndarray] = None
 
 
 def widest_paths(edges: Links, names: Iterable[str], ref: str) -> Dict[str, Placement]:
@@ -81,7 +89,7 @@ def widest_paths(edges: Links, names: Iterable[str], ref: str) -> Dict[str, Plac
             T = best[u].T @ e.towards(u)
             best[v] = Placement(T, ratio, min(best[u].agreement, e.agreement),
                                 min(best[u].inliers or e.inliers, e.inliers), u,
-                                best[u].path + (v,), time.time())
+                                best[u].path + (v,), time.time(), chain_T=T)
             if v not in frontier:
                 frontier.append(v)
     return best
@@ -105,21 +113,30 @@ def link_covs(edges: Links, links: list) -> List[Optional[np.ndarray]]:
 def graph_poses(best: Dict[str, Placement], links: list, ref: str,
                 covs: Optional[List[Optional[np.ndarray]]] = None) -> Optional[Dict[str, np.ndarray]]:
     """Every placed robot's pose by all ``links`` at once (the reference held fixed), or None
-    when there is no cycle or a link disagrees with the solution by more than GRAPH_GATE.
+    when there is no cycle or a link disagrees with the solution (by more than GRAPH_GATE and,
+    for a link with a covariance, by more than it explains: GRAPH_GATE_CHI2).
     ``covs``: the links' covariances (:func:`link_covs`): each link weighed by its information."""
     if len(links) < len(best):
         return None
     opt = posegraph.optimise({n: p.T for n, p in best.items()}, links, ref, covs=covs)
-    worst = posegraph.worst_residual(opt, links)
-    if worst is not None and worst[0] <= GRAPH_GATE[0] and worst[1] <= GRAPH_GATE[1]:
-        return opt
-    return None
+    covs = covs if covs is not None else [None] * len(links)
+    for (a, b, Z, _), C in zip(links, covs):
+        if a not in opt or b not in opt:
+            continue
+        e = posegraph.link_error(opt[a], opt[b], Z)
+        if math.hypot(e[0], e[1]) <= GRAPH_GATE[0] and abs(e[2]) <= GRAPH_GATE[1]:
+            continue
+        if C is None or posegraph.mahalanobis2(e, Z, C) > GRAPH_GATE_CHI2:
+            return None
+    return opt
 
 
 def pin(config: MergeConfig, placements: Dict[str, Placement], edges: Links, ref: str,
         graph: bool) -> None:
     """Set every placement's covariance and weak flag (in place): by all links among the placed
-    robots when the pose graph placed them (``graph``), else along each robot's chain."""
+    robots when the pose graph placed them (``graph``), else along each robot's chain. Only
+    links with a covariance count: a robot that only links without one reach (too few walls
+    to search, a link from an older state file) has no covariance and is weakly pinned."""
     linked = {n: p for n, p in placements.items() if p.via != PRIOR}
     if graph:
         keys = [k for k in edges if k[0] in linked and k[1] in linked]
@@ -129,8 +146,19 @@ def pin(config: MergeConfig, placements: Dict[str, Placement], edges: Links, ref
             for a, b in zip(p.path, p.path[1:]):
                 keys.add((a, b) if (a, b) in edges else (b, a))
         keys = sorted(k for k in keys if k in edges)
+    keys = [k for k in keys if edges[k].cov is not None]
+    # the robots those links tie to the reference (the others' information would be singular)
+    tied, grew = {ref}, True
+    while grew:
+        grew = False
+        for a, b in keys:
+            if (a in tied) != (b in tied):
+                tied.update((a, b))
+                grew = True
+    keys = [k for k in keys if k[0] in tied]
     links = [(a, b, edges[(a, b)].T, 1.0) for a, b in keys]
-    covs = posegraph.covariances({n: p.T for n, p in linked.items()}, links, ref, link_covs(edges, links))
+    covs = posegraph.covariances({n: p.T for n, p in linked.items() if n in tied}, links, ref,
+                                 link_covs(edges, links))
     for n, p in placements.items():
         if n == ref:
             p.cov, p.weak = None, False
@@ -178,12 +206,13 @@ def hysteresis(config: MergeConfig, best: Dict[str, Placement], old: Dict[str, P
 def chain_holds(pl: Placement, edges: Links) -> bool:
     """The links a placement was made of are all still kept and still say where it is: a link
     replaced by a different solution (a look-alike corrected) moves the robot. The tolerance
-    allows for the pose graph, which moves a placement off its chain by up to GRAPH_GATE."""
+    allows for links estimated again as their maps grow. A placement the pose graph moved off
+    its chain is checked against the pose the chain gave then (``chain_T``)."""
     T = np.eye(3)
     for p, q in zip(pl.path, pl.path[1:]):
         e = edges.get((p, q)) or edges.get((q, p))
         if e is None:
             return False
         T = T @ e.towards(p)
-    d, a = pose_distance(T, pl.T)
+    d, a = pose_distance(T, pl.chain_T if pl.chain_T is not None else pl.T)
     return d <= GRAPH_GATE[0] + SAME_LINK[0] and a <= GRAPH_GATE[1] + SAME_LINK[1]

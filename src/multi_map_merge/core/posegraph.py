@@ -173,6 +173,20 @@ def covariances(poses: Dict[str, np.ndarray], links: List[Link], fixed: str,
     return {names[i]: C[3 * k:3 * k + 3, 3 * k:3 * k + 3] for k, i in enumerate(free)}
 
 
+def link_error(Ta: np.ndarray, Tb: np.ndarray, Z: np.ndarray) -> np.ndarray:
+    """A link's error (x, y in metres, yaw in radians) at poses ``Ta``, ``Tb``: what the poses
+    say b sits at, in ``Z``'s frame (zero where they agree with the link)."""
+    return _residual(Ta, Tb, Z)
+
+
+def mahalanobis2(e: np.ndarray, Z: np.ndarray, C: np.ndarray) -> float:
+    """Squared Mahalanobis distance of a link's error ``e`` (:func:`link_error`) under the
+    link's covariance ``C`` (of its ``Z``'s x, y, yaw; x, y in the link's parent frame)."""
+    L, _ = _sqrt_information(np.array([xyyaw(Z)], float), [C])
+    w = L[0] @ np.asarray(e, float)
+    return float(w @ w)
+
+
 def worst_residual(poses: Dict[str, np.ndarray], links: List[Link]) -> Optional[Tuple[float, float]]:
     """Largest (metres, radians) disagreement of a link with the poses (None without links)."""
     worst = None

@@ -63,6 +63,12 @@ def test_real_map_offset_covered(intel):
     p = cv.pinning(ga.levels(), gb.levels(), off @ A_true)
     d = p.A @ np.linalg.inv(A_true)
     assert math.hypot(d[0, 2], d[1, 2]) < 1.5 and abs(math.degrees(math.atan2(d[1, 0], d[0, 0]))) < 0.3
+    # the truth as a perturbation of the given pose (a shift of the walls' centre, a turn about
+    # it: cov's terms) lies inside the 95% ellipse (chi-square, 3 dof)
+    P = A_true @ np.linalg.inv(off @ A_true)
+    c = np.append(p.centre, 1.0)
+    e = np.array([*(P @ c - c)[:2], math.atan2(P[1, 0], P[0, 0])])
+    assert float(e @ np.linalg.solve(p.cov, e)) < 7.81, (e, p.cov)
     # at the truth itself the truth is inside the 95% ellipse
     p0 = cv.pinning(ga.levels(), gb.levels(), A_true)
     assert p0.cost <= p0.cost_best + 1e-9 or np.allclose(p0.A, A_true, atol=1.0)

@@ -137,3 +137,65 @@ def test_a_weakly_pinned_robot_improves_when_another_link_pins_the_weak_directio
     assert not after.weak and not m.status()['b'].placement.weak
     assert np.hypot(*err1) <= np.hypot(*err0) + 0.005, (err0, err1)
     assert err1 @ np.linalg.solve(after.cov[:2, :2], err1) < 5.99, (err1, after.cov)
+
+
+def edges_triangle(err, cov_ra=CORRIDOR_X, cov_other=TIGHT):
+    """:func:`links_triangle` as the merger's verified links (Edge), with covariances."""
+    from multi_map_merge.core.links import Edge
+    return {(a, b): Edge(a, b, Z, 0.95, 0.98, 100, 300, 1.0, 1000, cov_ra if (a, b) == ('r', 'a') else cov_other)
+            for a, b, Z, _ in links_triangle(err)}
+
+
+def place(edges):
+    """The merger's placement steps on ``edges`` (reference r): (placements, graph used)."""
+    from multi_map_merge.core import placement
+    best = placement.widest_paths(edges, ['r', 'a', 'b'], 'r')
+    graph, _ = placement.graph_links(edges, best)
+    poses = placement.graph_poses(best, graph, 'r', placement.link_covs(edges, graph))
+    if poses is not None:
+        for n in best:
+            best[n].T = poses[n]
+    placement.pin(MergeConfig(workers=1), best, edges, 'r', poses is not None)
+    return best, poses is not None
+
+
+@pytest.mark.parametrize('err', [0.1, 0.35, 0.6])
+def test_a_corridor_link_far_off_along_its_walls_is_pulled_in_by_the_pinned_links(err):
+    """The pose graph is not vetoed by a link whose disagreement its own covariance explains: a
+    corridor link 0.35-0.6 m off along the corridor (over GRAPH_GATE's 0.3 m) is outvoted by the
+    links that pin that direction, and the robot lands at the truth, well pinned; its chain
+    still holds the next cycle although the graph moved it by ``err``."""
+    from multi_map_merge.core import placement
+    edges = edges_triangle(err)
+    best, used = place(edges)
+    a = best['a']
+    assert used
+    assert abs(xyyaw(a.T)[0] - 5.0) < 0.01 and abs(xyyaw(a.T)[1]) < 0.01, xyyaw(a.T)
+    assert not a.weak and 2 * position_sigma(a.cov) < 0.05
+    assert placement.chain_holds(a, edges)
+
+
+def test_a_link_off_across_its_walls_still_vetoes_the_graph():
+    """A link 1.2 m off in a direction its covariance pins (a look-alike, not a slide) keeps the
+    graph from averaging it in (the graph would leave every link 0.4 m off): the robots stay
+    on their chains."""
+    edges = edges_triangle(1.2, cov_ra=TIGHT)
+    best, used = place(edges)
+    assert not used
+    assert min(abs(xyyaw(best['a'].T)[0] - x) for x in (5.0, 6.2)) < 1e-9
+
+
+@pytest.mark.parametrize('graph', [False, True])
+def test_a_robot_reached_only_through_a_link_without_covariance_is_weak(graph):
+    """No made-up covariance: a robot whose only links have none (too few walls to search, a link
+    from an older state file) has no covariance and is weakly pinned; a robot the other links
+    pin is not."""
+    from multi_map_merge.core.links import Edge
+    edges = {('r', 'a'): Edge('r', 'a', se2(5.0, 0.0, 0.0), 0.99, 0.99, 200, 300, 1.0, 1000, None),
+             ('r', 'b'): Edge('r', 'b', se2(0.0, 5.0, 0.0), 0.9, 0.98, 100, 300, 1.0, 1000, TIGHT)}
+    if graph:   # a cycle through a, whose links have no covariance
+        edges[('b', 'a')] = Edge('b', 'a', se2(5.0, -5.0, 0.0), 0.9, 0.98, 100, 300, 1.0, 1000, None)
+    best, used = place(edges)
+    assert used == graph
+    assert best['a'].cov is None and best['a'].weak
+    assert best['b'].cov is not None and not best['b'].weak
