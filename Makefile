@@ -88,7 +88,7 @@ clean:
 # writes bench/results/{bench.json,bench.png,live.json}. m-explore is measured when ../shared is present.
 # (python3-matplotlib, for its plot, is one of APT_PKGS: build installs it)
 bench: build
-	@$(ROS_ENV) && cd $(CURDIR) && python3 bench/run_bench.py && python3 bench/live_gap.py && python3 bench/pinning_cost.py
+	@$(ROS_ENV) && cd $(CURDIR) && python3 bench/run_bench.py && python3 bench/live_gap.py && python3 bench/pinning_cost.py | tee bench/results/pinning_cost.txt
 
 # The workspace's setup.bash, for the README's `rosrun multi_map_merge ...` commands in a shell:
 #   make build && source "$(make -s setup-path)"
