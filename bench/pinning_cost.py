@@ -21,7 +21,6 @@ from multi_map_merge.core import pair  # noqa: E402
 from multi_map_merge.core.config import MergeConfig  # noqa: E402
 from multi_map_merge.core.merger import MapMerger  # noqa: E402
 
-
 # issue 22: the covariance may make a cold estimation at most this much slower (percent)
 LIMIT_PERCENT = 20.0
 

@@ -4,6 +4,7 @@
 
     python3 bench/pinning_sweep.py -o /tmp/sweep.json            # merge every case (minutes)
     python3 bench/pinning_sweep.py --cases /tmp/sweep.pkl ...     # reuse the merges
+    python3 bench/pinning_sweep.py --robots-csv results/pinning_chain_flood.csv   # per robot
 
 Cases, per ground-truth building (``lab/drives.py``: the 11 with a CARMEN log, along their
 real drive, and the two AWS maps, along a drive planned through their free space): ``chain``
@@ -188,6 +189,7 @@ def summary(results):
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     ap.add_argument('-o', '--output', help='JSON of every record')
+    ap.add_argument('--robots-csv', help='CSV of every placed robot: its error, its reported sigma, weak or not')
     ap.add_argument('--cases', default='/tmp/pinning_cases', help='cache of cut maps and logs (directory)')
     ap.add_argument('--quick', action='store_true', help='3 cases per building')
     ap.add_argument('--only', nargs='*', help='buildings')
@@ -262,6 +264,23 @@ def main():
     if a.output:
         with open(a.output, 'w') as fh:
             json.dump(results, fh)
+    if a.robots_csv:
+        write_robots_csv(results, a.robots_csv)
+
+
+def write_robots_csv(results, path):
+    """One line per placed robot of every case: where it is off (m, deg), the 1-sigma of its
+    position in its worst direction (m), its squared Mahalanobis distance (position, 2 dof),
+    and whether it was placed right and reported weak."""
+    with open(path, 'w') as fh:
+        fh.write('building,kind,robots,seed,robot,via,err_m,err_deg,sigma_pos_m,d2_pos,right,weak\n')
+        for c in results:
+            for r in c['robots']:
+                sig, d2 = r.get('sigma_pos'), r.get('d2_pos')
+                fh.write('%s,%s,%d,%d,%s,%s,%.4f,%.3f,%s,%s,%d,%d\n' % (
+                    c['building'], c['kind'], c['n'], c['seed'], r['robot'], r['via'], r['err_m'],
+                    r['err_deg'], '' if sig is None else '%.4f' % sig, '' if d2 is None else '%.2f' % d2,
+                    r['right'], r.get('weak', False)))
 
 
 if __name__ == '__main__':
