@@ -1,13 +1,16 @@
 #!/usr/bin/env python3
-"""rostest: rviz with the shipped rviz/multi_map_merge.rviz on a live merge, under Xvfb, judged
-on a screenshot (see rviz_screenshot.test).
+"""rostest: rviz as users get it on a live merge, under Xvfb, judged on a screenshot and on its
+toolbar (see rviz_screenshot.test).
 
 The merger runs on the three Turtlebot3s' gmapping maps of a maze (test/data/tb3_dans_maze,
-published by ``publish_maps``). This test starts Xvfb on a free display (``-displayfd``) the size
-of the config's ``Window Geometry``, starts ``rviz -d <config>`` there, waits until ``/map`` is
-the merge of all three robots (``map -> tb3_N/map`` in TF), then takes screenshots (Xvfb's
-framebuffer, an XWD file with ``-fbdir``) until the picture passes or the time is up, and asserts
-on the last one's pixels:
+published by ``publish_maps``). rviz is started as turtlebot3_multi_slam.launch starts it:
+``rosrun multi_map_merge robots_rviz --robots 'tb3_0 tb3_1 tb3_2'``, which writes its config from
+rviz/multi_map_merge.rviz (one map display and one prior tool per robot) and runs rviz on it. This
+test has robots_rviz write that config first (``--write-only``) and reads it, starts Xvfb on a
+free display (``-displayfd``) the size of its ``Window Geometry``, starts robots_rviz there, waits
+until ``/map`` is the merge of all three robots (``map -> tb3_N/map`` in TF), then takes
+screenshots (Xvfb's framebuffer, an XWD file with ``-fbdir``) until the picture passes or the time
+is up, and asserts on the last one's pixels:
 
 * the 3D view fills most of the window: the view is the bounding box of the largest connected
   region of the config's background colour (grid lines closed over), and its area is >= 60% of
@@ -18,9 +21,18 @@ on the last one's pixels:
   grey-green; pixels under a grid line are not judged) and >= 90% of those agree with the ``/map``
   cell under them (best over shifts of up to 2 pixels).
 
+Then that rviz is stopped and robots_rviz is run again on the same display with ``--print-tools``
+(rviz loads the same config, names the tools, prints its toolbar's and Tool Properties' names,
+and quits): both must have ``tb3_0 prior``, ``tb3_1 prior``, ``tb3_2 prior`` (in that order) and
+no "2D Pose Estimate". Where rviz's Python bindings are not installed (robots_rviz then starts
+plain rviz, whose tools cannot be named) this part is skipped, saying so, after the screenshot's
+assertions.
+
 The screenshot is written to ``$ROS_HOME/rviz_screenshot.png`` (``MMM_RVIZ_SCREENSHOT`` sets the
-path) and printed with the numbers. ``MMM_RVIZ_CONFIG`` runs another rviz file (e.g. an old one, to
-see it fail). Skips, saying so, only when rviz or Xvfb is not installed.
+path) and printed with the numbers, among them the share of the view the map's rectangle covers
+and the share it shows as known (free or occupied) cells. ``MMM_RVIZ_CONFIG`` runs another rviz
+file as plain ``rviz -d <file>`` instead (e.g. an old one, to see it fail; its toolbar is not
+checked). Skips, saying so, only when rviz or Xvfb is not installed.
 """
 import os
 import shutil
@@ -128,7 +140,7 @@ def judge(img, geometry, view_cfg, background, grid_rgb, grid):
     x0, y0, W, H = geometry
     win = img[y0:y0 + H, x0:x0 + W]
     r = {'window': (W, H), 'view': None, 'view_fraction': 0.0, 'map_fraction_of_view': 0.0,
-         'map_pixels': 0, 'map_coverage': 0.0, 'agreement': None, 'shift': None}
+         'known_fraction_of_view': 0.0, 'map_pixels': 0, 'map_coverage': 0.0, 'agreement': None, 'shift': None}
     v = find_view(win, background)
     if v is None:
         return r
@@ -139,6 +151,8 @@ def judge(img, geometry, view_cfg, background, grid_rgb, grid):
     inside = ~np.ma.getmaskarray(exp)
     r['map_pixels'] = int(inside.sum())
     r['map_fraction_of_view'] = r['map_pixels'] / float(vw * vh)
+    known = inside & ((exp.data == FREE) | (exp.data == OCCUPIED))
+    r['known_fraction_of_view'] = int(known.sum()) / float(vw * vh)
     if not r['map_pixels']:
         return r
     # judged: the map's rectangle in the view but m pixels from its edges; shifts of up to m pixels
@@ -170,23 +184,41 @@ def passes(r):
 
 def report(r):
     return ('window %dx%d, 3D view %s = %.1f%% of the window (>= %.0f%%); merged map: %d pixels = %.1f%% of '
-            'the view (>= %.0f%%), %.1f%% of them in map colours (>= %.0f%%), agreeing with /map %s '
-            '(>= %.0f%%, shift %s)' % (
+            'the view (>= %.0f%%; known cells %.1f%% of the view), %.1f%% of them in map colours (>= %.0f%%), '
+            'agreeing with /map %s (>= %.0f%%, shift %s)' % (
                 r['window'][0], r['window'][1], 'none' if r['view'] is None else '%dx%d at (%d, %d)' % (
                     r['view'][2], r['view'][3], r['view'][0], r['view'][1]),
                 100 * r['view_fraction'], 100 * MIN_VIEW_FRACTION, r['map_pixels'], 100 * r['map_fraction_of_view'],
-                100 * MIN_MAP_FRACTION_OF_VIEW, 100 * r['map_coverage'], 100 * MIN_MAP_COVERAGE,
+                100 * MIN_MAP_FRACTION_OF_VIEW, 100 * r['known_fraction_of_view'], 100 * r['map_coverage'],
+                100 * MIN_MAP_COVERAGE,
                 'n/a' if r['agreement'] is None else '%.1f%%' % (100 * r['agreement']), 100 * MIN_AGREEMENT,
                 r['shift']))
 
 
 # ---------------------------------------------------------------- the config
-def rviz_config():
-    """(path, YAML) of the rviz file under test: MMM_RVIZ_CONFIG or the package's."""
-    path = os.environ.get('MMM_RVIZ_CONFIG') or os.path.join(
-        rospkg.RosPack().get_path(PKG), 'rviz', 'multi_map_merge.rviz')
+def robots_rviz(*args):
+    """argv of robots_rviz for ROBOTS, as turtlebot3_multi_slam.launch starts it (a node of
+    type robots_rviz with ``--robots '$(arg robots)'``), with ``args`` after it."""
+    return ['rosrun', PKG, 'robots_rviz', '--robots', ' '.join(ROBOTS)] + list(args)
+
+
+def rviz_config(workdir):
+    """(path, YAML, argv) of the rviz file under test and how rviz is started on it (with a
+    display): MMM_RVIZ_CONFIG and plain ``rviz -d``, or the config robots_rviz writes for ROBOTS
+    (written here with ``--write-only``) and robots_rviz itself."""
+    path = os.environ.get('MMM_RVIZ_CONFIG')
+    if path:
+        argv = ['rviz', '-d', path]
+    else:
+        path = os.path.join(workdir, 'robots.rviz')
+        w = subprocess.run(robots_rviz('--output', path, '--write-only'), capture_output=True, text=True,
+                           timeout=60)
+        if w.returncode != 0:
+            raise AssertionError('robots_rviz --write-only failed (exit %d): %s%s'
+                                 % (w.returncode, w.stdout, w.stderr))
+        argv = robots_rviz('--output', path)
     with open(path) as f:
-        return path, yaml.safe_load(f)
+        return path, yaml.safe_load(f), argv
 
 
 def rgb_of(text):
@@ -200,6 +232,7 @@ class TestRvizScreenshot(unittest.TestCase):
         self.t0 = time.time()
         self.procs = []
         self.fbdir = tempfile.mkdtemp(prefix='rviz_screenshot_')
+        self.workdir = tempfile.mkdtemp(prefix='rviz_screenshot_cfg_')
         missing = [exe for exe in ('rviz', 'Xvfb') if shutil.which(exe) is None]
         if missing:
             self.skipTest('not installed: %s (Debian 12 / Ubuntu: apt-get install rviz xvfb, as make deps '
@@ -215,15 +248,10 @@ class TestRvizScreenshot(unittest.TestCase):
 
     def tearDown(self):
         for p, log in reversed(self.procs):
-            if p.poll() is None:
-                p.terminate()
-                try:
-                    p.wait(10)
-                except subprocess.TimeoutExpired:
-                    p.kill()
-                    p.wait()
+            self._stop(p)
             log.close()
         shutil.rmtree(self.fbdir, ignore_errors=True)
+        shutil.rmtree(self.workdir, ignore_errors=True)
 
     def _on_map(self, msg):
         with self.lock:
@@ -257,7 +285,7 @@ class TestRvizScreenshot(unittest.TestCase):
             return self.map_msg
 
     def test_rviz_shows_the_merged_map_in_a_large_view(self):
-        path, cfg = rviz_config()
+        path, cfg, argv = rviz_config(self.workdir)
         g = cfg.get('Window Geometry') or {}
         geometry = (int(g.get('X', 0)), int(g.get('Y', 0)), int(g.get('Width', 1200)), int(g.get('Height', 800)))
         vm = cfg['Visualization Manager']
@@ -269,7 +297,7 @@ class TestRvizScreenshot(unittest.TestCase):
         grid_rgb = rgb_of(grids[0].get('Color', '160; 160; 164')) if grids else None
 
         display = self._xvfb(geometry[0] + geometry[2], geometry[1] + geometry[3])
-        rviz, rviz_log = self._start('rviz', ['rviz', '-d', path], env=dict(os.environ, DISPLAY=display))
+        rviz, rviz_log = self._start('rviz', argv, env=dict(os.environ, DISPLAY=display))
         out = os.environ.get('MMM_RVIZ_SCREENSHOT') or os.path.join(rospkg.get_ros_home(), 'rviz_screenshot.png')
 
         r, img, shots, grid = None, None, 0, None
@@ -286,13 +314,49 @@ class TestRvizScreenshot(unittest.TestCase):
         self.assertIsNotNone(grid, 'no merged /map of %s within %.0f s' % (', '.join(ROBOTS), TIME_LIMIT))
         os.makedirs(os.path.dirname(os.path.abspath(out)), exist_ok=True)
         cv2.imwrite(out, img[:, :, ::-1])
-        print('rviz %s on a %dx%d map (%d robots merged), %d screenshot(s), %.1f s: %s; screenshot: %s' % (
-            path, grid.info.width, grid.info.height, len(ROBOTS), shots, time.time() - self.t0, report(r), out))
+        print('%s (config %s) on a %dx%d map (%d robots merged), %d screenshot(s), %.1f s: %s; screenshot: %s' % (
+            ' '.join(argv), path, grid.info.width, grid.info.height, len(ROBOTS), shots, time.time() - self.t0,
+            report(r), out))
         self.assertGreaterEqual(r['view_fraction'], MIN_VIEW_FRACTION, 'the 3D view is small: %s' % report(r))
         self.assertGreaterEqual(r['map_fraction_of_view'], MIN_MAP_FRACTION_OF_VIEW,
                                 'the merged map is not in the view: %s' % report(r))
         self.assertGreaterEqual(r['map_coverage'], MIN_MAP_COVERAGE, 'the merged map is not drawn: %s' % report(r))
         self.assertGreaterEqual(r['agreement'] or 0.0, MIN_AGREEMENT, 'the view is not the merged map: %s' % report(r))
+        if argv[0] == 'rviz':
+            print('MMM_RVIZ_CONFIG: plain rviz, its toolbar is not checked')
+            return
+        self._stop(rviz)
+        self._check_toolbar(path, display)
+
+    @staticmethod
+    def _stop(p):
+        if p.poll() is None:
+            p.terminate()
+            try:
+                p.wait(10)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
+
+    def _check_toolbar(self, path, display):
+        """robots_rviz --print-tools on the same config and display: rviz's own toolbar and Tool
+        Properties name one prior tool per robot."""
+        t = subprocess.run(robots_rviz('--output', path, '--print-tools'), capture_output=True, text=True,
+                           timeout=60, env=dict(os.environ, DISPLAY=display))
+        out = t.stdout + t.stderr
+        print('robots_rviz --print-tools (exit %d): %s' % (t.returncode, ' / '.join(
+            ln for ln in t.stdout.splitlines() if ln.startswith('robots_rviz tool'))))
+        if t.returncode != 0 and "Python bindings are not installed" in t.stderr:
+            self.skipTest('the screenshot passed; the toolbar is not checked: %s' % t.stderr.strip())
+        self.assertEqual(t.returncode, 0, 'robots_rviz --print-tools failed: %s' % out[-2000:])
+        names = {ln.split(': ', 1)[0]: ln.split(': ', 1)[1].split(' | ')
+                 for ln in t.stdout.splitlines() if ln.startswith('robots_rviz tool')}
+        want = ['%s prior' % r for r in ROBOTS]
+        for what in ('robots_rviz tools', 'robots_rviz tool properties'):
+            got = names.get(what)
+            self.assertIsNotNone(got, 'robots_rviz printed no %r line: %s' % (what, out[-2000:]))
+            self.assertEqual([n for n in got if n.endswith(' prior')], want, '%s: %s' % (what, got))
+            self.assertNotIn('2D Pose Estimate', got, '%s: %s' % (what, got))
 
 
 def tail(path, n=15):

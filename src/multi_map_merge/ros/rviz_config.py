@@ -138,14 +138,7 @@ def run_rviz(config: str, robots: List[str], print_tools: bool = False) -> int:
     frame.initialize(config)
     frame.show()
 
-    def label():
-        tm = frame.getManager().getToolManager()
-        tools = [tm.getTool(i) for i in range(tm.numTools())]
-        priors = [t for t in tools if t.getClassId() == 'rviz/SetInitialPose']
-        if len(priors) != len(robots):
-            print('robots_rviz: %d prior tools for %d robots: names left as they are'
-                  % (len(priors), len(robots)), file=sys.stderr)
-            return
+    def rename(priors):
         old = priors[0].getName()
         actions = [act for bar in frame.findChildren(QToolBar) for act in bar.actions() if act.text() == old]
         for robot, tool in zip(robots, priors):
@@ -155,7 +148,17 @@ def run_rviz(config: str, robots: List[str], print_tools: bool = False) -> int:
                 act.setText('%s prior' % robot)
                 act.setToolTip('where %s started: its map frame in the merged frame (/%s)'
                                % (robot, PRIOR_TOPIC % robot))
-        if print_tools:
+
+    def label():
+        tm = frame.getManager().getToolManager()
+        tools = [tm.getTool(i) for i in range(tm.numTools())]
+        priors = [t for t in tools if t.getClassId() == 'rviz/SetInitialPose']
+        if len(priors) != len(robots):
+            print('robots_rviz: %d prior tools for %d robots: names left as they are'
+                  % (len(priors), len(robots)), file=sys.stderr)
+        else:
+            rename(priors)
+        if print_tools:     # also when nothing was renamed: the caller sees what rviz shows
             names = [act.text() for bar in frame.findChildren(QToolBar) for act in bar.actions() if act.text()]
             print('robots_rviz tools: %s' % ' | '.join(names))
             print('robots_rviz tool properties: %s' % ' | '.join(t.getName() for t in tools))
