@@ -56,7 +56,7 @@ def main(names):
         print('%-10s CPU without %.3f s  with %.3f s  %+.1f%% (median of 5, in-process A/B); '
               'time in the covariance over the rest of the cycle: %+.1f%% (median): %s'
               % (name, b, a, 100 * (a / b - 1), over,
-                 'within the 20%% limit' if over <= LIMIT_PERCENT else 'OVER the 20%% limit'), flush=True)
+                 'within the 20% limit' if over <= LIMIT_PERCENT else 'OVER the 20% limit'), flush=True)
 
 
 if __name__ == '__main__':
