@@ -28,6 +28,7 @@ import rostest
 import tf2_ros
 import yaml
 from geometry_msgs.msg import PoseWithCovarianceStamped
+from rosgraph_msgs.msg import Log
 from rostest_helpers import Listener, RobotPlayer, fmt_pose, lookup, shared_data, wait_until
 from std_msgs.msg import Empty
 
@@ -93,6 +94,9 @@ class TestPriorClick(unittest.TestCase):
         self.buf = tf2_ros.Buffer(rospy.Duration(30.0))
         self.tfl = tf2_ros.TransformListener(self.buf)
         listen = Listener()
+        logs = []
+        rospy.Subscriber('/rosout', Log, lambda m: logs.append(m.msg) if m.name.endswith('map_merge') else None,
+                         queue_size=100)
         player = RobotPlayer(ROBOTS)
         player.publish('tb3_0', a)
         player.publish('tb3_1', b)
@@ -131,6 +135,8 @@ class TestPriorClick(unittest.TestCase):
         print('    /diagnostics: %s (%s)' % (st[0].message, st[1]))
         self.assertEqual(st[1].get('merged'), 'true')
         self.assertEqual(st[1].get('via'), 'tb3_0', 'tb3_1 not placed by a link')
+        self.assertTrue([m for m in logs if 'link tb3_0 -> tb3_1 dropped: it contradicts the new prior' in m],
+                        logs[-10:])
         # it stays there
         time.sleep(3.0)
         err = self.error()
