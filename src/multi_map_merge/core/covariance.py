@@ -42,6 +42,10 @@ MIN_POINTS = 30
 # (half-width cells, step cells, half-width degrees, step degrees, share of the points)
 COARSE = (12, 2, 2.0, 1.0, 3)
 FINE = (3, 1, 0.75, 0.25, 1)
+# search(): the coarse window's steps (cells, degrees) and how many of its best poses are
+# searched finely
+SEARCH_STEP = (2, 0.5)
+SEARCH_CANDIDATES = 8
 # mean cost (cells^2) by which a pose found by the search must beat the given one to replace it
 BETTER_COST = 0.02
 # floors of the reported standard deviations (cells, degrees), beside the window's quantisation
@@ -211,6 +215,61 @@ def pinning(parent_levels: np.ndarray, child_levels: np.ndarray, A: np.ndarray,
     D = se2(best[0], best[1], 0.0) @ se2(centre[0], centre[1], best[2]) @ se2(-centre[0], -centre[1], 0.0)
     cost0 = _search(field, q, centre, 0, 1, 0.0, 1.0, (0.0, 0.0, 0.0))[0].item()
     return Pinning(D @ A, cov + floor, cov_b + floor, centre, cost0, float(costs_f.min()), pts)
+
+
+def search(field: CostField, child_points: np.ndarray, A: np.ndarray, half_cells: int,
+           half_deg: float, pivot: Optional[np.ndarray] = None) -> Optional[Tuple[np.ndarray, float]]:
+    """The least-cost pose of the child's walls within a wide window around ``A`` (3x3, cells of
+    the child -> cells of the parent): +-``half_cells`` of translation in the parent's cells,
+    +-``half_deg`` of turn about ``pivot`` (the child's cells; default the walls' centre);
+    coarse (:data:`SEARCH_STEP`, a third of the walls), then :data:`FINE` around the coarse
+    window's best poses. Unlike :func:`pinning`
+    every wall cell of the child is scored, wherever it lands under ``A`` (``A`` may be a metre
+    off: which walls overlap changes across the window); a wall landing on no wall of the
+    parent (unknown, free, outside) costs the truncation. Returns (the best pose, its mean
+    cost, cells^2), or None when the parent has no walls or the child too few."""
+    if not field.ok or child_points.shape[0] < MIN_POINTS:
+        return None
+    pts = child_points
+    if pts.shape[0] > MAX_POINTS:
+        pts = pts[:: int(math.ceil(pts.shape[0] / float(MAX_POINTS)))]
+    mapped = pts @ A[:2, :2].T + A[:2, 2]
+    centre = mapped.mean(axis=0) if pivot is None else A[:2, :2] @ np.asarray(pivot, np.float64) + A[:2, 2]
+    q = mapped - centre
+    share = COARSE[4]
+    qc = q[::share] if q.shape[0] >= share * MIN_POINTS else q
+    step, step_deg = SEARCH_STEP
+    half = max(step, step * int(math.ceil(half_cells / float(step))))
+    costs, xs, ys, yaws = _search(field, qc, centre, half, step, max(step_deg, half_deg), step_deg,
+                                  (0.0, 0.0, 0.0))
+    half_f, step_f, hdeg_f, sdeg_f, _ = FINE
+    best = None
+    # the coarse grid can straddle the right pose's basin (walls far from the pivot sweep
+    # cells per step of turn) while another pose falls on a grid point: the fine window goes
+    # around each of the coarse grid's SEARCH_CANDIDATES best, mutually distinct, poses
+    for mode in _best_poses(costs, xs, ys, yaws, SEARCH_CANDIDATES, (half_f, math.radians(hdeg_f))):
+        costs_f, xf, yf, yawf = _search(field, q, centre, half_f, step_f, hdeg_f, sdeg_f, mode)
+        cost = float(costs_f.min())
+        if best is None or cost < best[1]:
+            best = (_mode(costs_f, xf, yf, yawf), cost)
+    (bx, by, bth), cost = best
+    D = se2(bx, by, 0.0) @ se2(centre[0], centre[1], bth) @ se2(-centre[0], -centre[1], 0.0)
+    return D @ A, cost
+
+
+def _best_poses(costs: np.ndarray, xs, ys, yaws, n: int, apart: Tuple[float, float]):
+    """Up to ``n`` least-cost poses (x, y cells, yaw rad) of a window, each farther than
+    ``apart`` (cells, radians, in x or y or yaw) from every better one."""
+    out = []
+    for k in np.argsort(costs, axis=None, kind='stable'):
+        i, j, m = np.unravel_index(int(k), costs.shape)
+        p = (float(xs[m]), float(ys[j]), float(yaws[i]))
+        if all(abs(p[0] - o[0]) > apart[0] or abs(p[1] - o[1]) > apart[0] or abs(p[2] - o[2]) > apart[1]
+               for o in out):
+            out.append(p)
+            if len(out) == n:
+                break
+    return out
 
 
 def _seen(field: CostField, pts: np.ndarray, A: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:

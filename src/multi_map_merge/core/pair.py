@@ -18,7 +18,7 @@ from .config import MergeConfig
 from .features import FeatureExtractor, Features, coarsening
 from .grid import known_bbox
 from .refine import WALL_FIELD_MARGIN, WallField, occupied_points, refine
-from .transforms import apply, image_to_pose, inverse, pose_distance, se2, turn_between
+from .transforms import apply, cell_to_metric, image_to_pose, inverse, pose_distance, pose_to_image, se2, turn_between
 
 
 @dataclass
@@ -293,15 +293,99 @@ def _pin(config: MergeConfig, pa: PairInput, ch: PairInput, r: PairResult) -> No
     r.cov = covariance.metric_covariance(cov, centre, T, pa.resolution, pa.origin)
 
 
+def _judge(c: MergeConfig, pa: PairInput, ch: PairInput, h: PairResult) -> None:
+    """Pass ``h`` (its inliers, inlier ratio, agreement and overlap set) through every gate:
+    ``h.accepted``, or ``h.reason`` for the first gate it fails."""
+    contradiction = contradicts_prior(c, pa, ch, h.A)
+    if contradiction:
+        h.reason = contradiction
+    elif h.overlap < c.min_overlap_cells:
+        h.reason = 'overlap %d cells < %d' % (h.overlap, c.min_overlap_cells)
+    elif h.agreement < c.min_agreement:
+        h.reason = 'grids disagree: agreement %.2f < %.2f' % (h.agreement, c.min_agreement)
+    elif h.inlier_ratio < c.min_inlier_ratio:
+        h.reason = 'inlier ratio %.3f < %.3f' % (h.inlier_ratio, c.min_inlier_ratio)
+    elif h.inliers < c.few_inliers and h.agreement < c.few_inliers_min_agreement:
+        # A look-alike place yields few agreeing matches and walls that agree only in the
+        # main; right links of few inliers agree almost perfectly (docs/measurements.md)
+        h.reason = ('too little evidence: %d inliers and agreement %.3f (under %d inliers a link needs %.2f)'
+                    % (h.inliers, h.agreement, c.few_inliers, c.few_inliers_min_agreement))
+    else:
+        h.accepted = True
+
+
+def prior_guess(config: MergeConfig, pa: PairInput, ch: PairInput) -> Optional[np.ndarray]:
+    """The link the priors give (cells of ``ch``'s crop -> cells of ``pa``'s crop), None when
+    either robot has none."""
+    priors = config.initial_poses
+    if pa.name not in priors or ch.name not in priors:
+        return None
+    P = inverse(se2(*priors[pa.name])) @ se2(*priors[ch.name])
+    A = pose_to_image(P, pa.resolution, pa.origin, ch.resolution, ch.origin)
+    return se2(-pa.offset[0], -pa.offset[1], 0.0) @ A @ se2(ch.offset[0], ch.offset[1], 0.0)
+
+
+# the widest window searched around a prior (metres, degrees): a prior given by a click in rviz
+# is rough, the tolerance may be wide, and the search's cost grows with the window
+PRIOR_SEARCH_AT_MOST = (1.5, 30.0)
+
+
+def _near_prior(config: MergeConfig, pa: PairInput, ch: PairInput, src: np.ndarray, dst: np.ndarray,
+                matches: int) -> Optional[PairResult]:
+    """The link searched on the walls near the one the priors give, when both robots have
+    one: a correlative search of the child's walls over the priors' tolerance around it
+    (:func:`covariance.search`), polished by ICP, then every gate of a feature hypothesis
+    (:func:`_judge`). RANSAC proposes only placements the features support, and where two
+    maps overlap by a strip (a building's halves, each mapped by one robot) the features there
+    are too few for the right one to be among them, while a look-alike elsewhere has many:
+    the priors say where to look instead. Few feature matches agree with such a link, so it
+    must verify as well as any link of few inliers (``few_inliers_min_agreement``). None when
+    there is no prior, or nothing to search."""
+    A0 = prior_guess(config, pa, ch)
+    if A0 is None:
+        return None
+    tol_d, tol_a = config.initial_pose_tolerance
+    half = int(math.ceil(min(tol_d, PRIOR_SEARCH_AT_MOST[0]) / pa.resolution))
+    # turns about the child's map frame origin (its start pose), as the tolerance is measured:
+    # the window is then the tolerance's, wherever the walls lie
+    origin = (inverse(cell_to_metric(ch.resolution, ch.origin)) @ np.array([0.0, 0.0, 1.0]))[:2]
+    pivot = origin - np.array(ch.offset, np.float64)
+    found = covariance.search(_derived('costfield', pa, _cost_field), _wall_points(ch), A0, half,
+                              min(math.degrees(tol_a), PRIOR_SEARCH_AT_MOST[1]), pivot)
+    if found is None:
+        return None
+    A = refined(config, pa, ch, found[0]) if config.refine else found[0]
+    inl = int(matching.inlier_mask(A, src, dst, config.ransac_threshold ** 2).sum()) if src.shape[0] else 0
+    h = PairResult(A, matches=matches, inliers=inl, inlier_ratio=inl / float(max(1, matches)))
+    h.agreement, h.overlap = verify.agreement(pa.levels, ch.levels, A, config.agreement_tolerance,
+                                              (_known(pa)[0], _known(ch)[0]),
+                                              _walls(pa, config.agreement_tolerance))
+    _judge(config, pa, ch, h)
+    return h
+
+
 def _align_crops(config: MergeConfig, pa: PairInput, ch: PairInput, seed: int) -> PairResult:
-    """:func:`align_pair` between the crops' cells."""
+    """:func:`align_pair` between the crops' cells: the features' best hypothesis, or, when
+    none is accepted and both robots have priors, the link found near the priors
+    (:func:`_near_prior`) if that one is accepted."""
+    r, src, dst = _align_features(config, pa, ch, seed)
+    if r.accepted:
+        return r
+    h = _near_prior(config, pa, ch, src, dst, r.matches)
+    return h if h is not None and h.accepted else r
+
+
+def _align_features(config: MergeConfig, pa: PairInput, ch: PairInput,
+                    seed: int) -> Tuple[PairResult, np.ndarray, np.ndarray]:
+    """(the features' best hypothesis, the unique matches' (N, 2) child and parent cells)."""
     c = config
     fa, fc = _at_one_scale(c, pa, ch)
     src, dst, unique = matching.match(fc, fa, c.match_candidates, c.match_ratio)
     r = PairResult(None, matches=int(unique.sum()))
+    usrc, udst = src[unique], dst[unique]
     if src.shape[0] < c.min_matches:
         r.reason = 'too few matches (%d < %d)' % (src.shape[0], c.min_matches)
-        return r
+        return r, usrc, udst
     hyps = matching.ransac_rigid(src, dst, c.ransac_threshold, c.ransac_iterations, seed,
                             c.ransac_hypotheses, min_count=max(2, int(0.7 * c.min_inliers)))
     lv_a, lv_b = pa.levels, ch.levels
@@ -336,25 +420,10 @@ def _align_crops(config: MergeConfig, pa: PairInput, ch: PairInput, seed: int) -
                      and not _same_place(A, scored[0][2], centre, pa.resolution)))
         if c.refine and close and ag >= c.min_agreement - 0.2:
             h.A = refined(c, pa, ch, A)
-        good_inl = int(matching.inlier_mask(h.A, src[unique], dst[unique], th2).sum()) if r.matches else 0
+        good_inl = int(matching.inlier_mask(h.A, usrc, udst, th2).sum()) if r.matches else 0
         h.inlier_ratio = good_inl / float(max(1, r.matches))
         h.agreement, h.overlap = verified(h.A)
-        contradiction = contradicts_prior(c, pa, ch, h.A)
-        if contradiction:
-            h.reason = contradiction
-        elif h.overlap < c.min_overlap_cells:
-            h.reason = 'overlap %d cells < %d' % (h.overlap, c.min_overlap_cells)
-        elif h.agreement < c.min_agreement:
-            h.reason = 'grids disagree: agreement %.2f < %.2f' % (h.agreement, c.min_agreement)
-        elif h.inlier_ratio < c.min_inlier_ratio:
-            h.reason = 'inlier ratio %.3f < %.3f' % (h.inlier_ratio, c.min_inlier_ratio)
-        elif h.inliers < c.few_inliers and h.agreement < c.few_inliers_min_agreement:
-            # A look-alike place yields few agreeing matches and walls that agree only in the
-            # main; right links of few inliers agree almost perfectly (docs/measurements.md)
-            h.reason = ('too little evidence: %d inliers and agreement %.3f (under %d inliers a link needs %.2f)'
-                        % (h.inliers, h.agreement, c.few_inliers, c.few_inliers_min_agreement))
-        else:
-            h.accepted = True
+        _judge(c, pa, ch, h)
         tried.append(h)
         # The grids decide between hypotheses: the best-agreeing accepted one wins.
         if best is None or (h.accepted, h.agreement, h.inliers) > (best.accepted, best.agreement, best.inliers):
@@ -364,11 +433,11 @@ def _align_crops(config: MergeConfig, pa: PairInput, ch: PairInput, seed: int) -
     if best is None and hyps:
         r.inliers = max(int(m.sum()) for _, m in hyps)
         r.reason = 'too few inliers (%d < %d)' % (r.inliers, c.min_inliers)
-        return r
+        return r, usrc, udst
     if best is None:
         r.reason = 'RANSAC found no consistent transform'
-        return r
-    return best
+        return r, usrc, udst
+    return best, usrc, udst
 
 
 def _known_centre(levels: np.ndarray, box) -> Optional[np.ndarray]:

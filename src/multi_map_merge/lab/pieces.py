@@ -66,6 +66,23 @@ def split_rects(world: Grid, n: int, overlap: float = 0.35) -> List[Tuple[int, i
     return out
 
 
+def halves(world: Grid, y: float, strip: float, poses: Sequence[Sequence[float]],
+           frames: Sequence[str] = ('', '')) -> List[Tuple[Grid, np.ndarray]]:
+    """Two robots' maps of a building split at the line ``y`` (metres, world frame, a yaw-0
+    world grid): the first above it, the second below, each reaching ``strip`` metres beyond
+    it (they share a strip 2 * ``strip`` wide), at ``poses`` as :func:`cut_piece`. On a
+    building of two look-alike halves (the Turtlebot3 double house, split where the robots
+    started) the features place one half on the other. Returns [(grid, T_world_k)] x 2."""
+    box = known_bbox(world.levels())
+    if box is None:
+        raise ValueError('world map has no known cell')
+    r0, r1, c0, c1 = box
+    mid = int(round((y - world.origin[1]) / world.resolution))
+    k = int(round(strip / world.resolution))
+    return [cut_piece(world, (max(r0, mid - k), r1, c0, c1), poses[0], frames[0]),
+            cut_piece(world, (r0, min(r1, mid + k), c0, c1), poses[1], frames[1])]
+
+
 def random_poses(n: int, seed: int, max_offset: float = 5.0,
                  max_yaw: float = math.pi) -> List[Tuple[float, float, float]]:
     """n poses (x, y, yaw): offsets up to ``max_offset`` metres, yaw up to ``max_yaw`` rad."""
