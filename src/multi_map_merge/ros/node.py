@@ -38,15 +38,50 @@ from .convert import (
 )
 from .diagnostics import node_diagnostic, robot_diagnostic
 from .markers import markers_key, markers_msg
-from .params import resolve_params
+from .params import check_library_param, resolve_params
+
+
+class _Updater(diagnostic_updater.Updater):
+    """diagnostic_updater's Updater, whose ``~diagnostic_period`` (read again from the parameter
+    server 4 times a second) is checked as the node's own parameters are: a bad value ('abc',
+    0, a list) is logged once and the last good period kept, where the library would raise at
+    every update and /diagnostics go silent."""
+
+    def __init__(self, period: float, given):
+        super().__init__()
+        self.period = period
+        self._given = given     # the value last read (an invalid one is logged once)
+
+    def _check_diagnostic_period(self) -> None:
+        now = rospy.Time.now()
+        if now < self.last_time_period_checked + rospy.Duration(0.25):
+            return
+        try:
+            given = rospy.get_param_cached('~diagnostic_period', 1.0)
+        except Exception:   # the master gone for a moment: keep the period
+            return
+        self.last_time_period_checked = now
+        if repr(given) == repr(self._given):   # (repr: nan is not equal to itself)
+            return
+        self._given = given
+        period, error = check_library_param('diagnostic_period', given)
+        if error:
+            rospy.logerr('multi_map_merge: %s (keeping %g s)', error, self.period)
+        else:
+            self.period = period
 
 
 def load_config() -> MergeConfig:
+    return load_params().config
+
+
+def load_params():
     """Every parameter of the node, read once from the private namespace and validated
     (:func:`resolve_params`): an invalid value is logged as an error naming the parameter and
     what it accepts, and its default is used; an unknown name gets a warning naming the closest
     known one; m-explore's names are read as aliases. The defaults are MergeConfig's, which
-    equal config/map_merge.yaml."""
+    equal config/map_merge.yaml. Returns the :class:`Resolved` (its ``config`` is the
+    node's)."""
     try:
         given = rospy.get_param('~', {})
     except KeyError:
@@ -58,7 +93,7 @@ def load_config() -> MergeConfig:
         rospy.logwarn('multi_map_merge: %s', line)
     for line in res.notes:
         rospy.loginfo('multi_map_merge: %s', line)
-    return res.config
+    return res
 
 
 class MergeNode:
@@ -72,7 +107,7 @@ class MergeNode:
     state on ``/diagnostics`` (``diagnostic_updater``).
     """
 
-    def __init__(self, config: MergeConfig):
+    def __init__(self, config: MergeConfig, diagnostic_period: float = 1.0, given_period=1.0):
         self.cfg = config
         self.merger = MapMerger(config)
         self._subs: Dict[str, list] = {}
@@ -98,7 +133,7 @@ class MergeNode:
         self._est_error: Optional[BaseException] = None   # what the last estimation cycle raised
         # /diagnostics: the node's status and one per robot (added as robots appear), at
         # ~diagnostic_period (the updater's parameter, 1 s by default)
-        self._updater = diagnostic_updater.Updater()
+        self._updater = _Updater(diagnostic_period, given_period)
         self._updater.setHardwareID(rospy.get_name().lstrip('/'))
         self._updater.add('node', self._node_diagnostic)
         self._diag_robots: set = set()
@@ -516,5 +551,6 @@ def run_merge_node() -> None:
     # memory (core/workers.py); a ~workers other than the default restarts them
     start_pool(0)
     rospy.init_node('map_merge')
-    MergeNode(load_config())
+    res = load_params()
+    MergeNode(res.config, res.library['diagnostic_period'], res.library_given.get('diagnostic_period', 1.0))
     rospy.spin()
