@@ -21,6 +21,8 @@ class MergeConfig:
     merge_rate: float = 2.0
     discovery_rate: float = 0.5
     tf_rate: float = 20.0
+    # --- input health (node only) ---
+    stale_map_timeout: float = 30.0          # s: a robot whose last map is older is WARN; 0 = off
     # --- grid -> image ---
     free_thresh: float = 19.6                # percent: 0..free_thresh is free
     occupied_thresh: float = 65.0            # percent: >= occupied_thresh is occupied

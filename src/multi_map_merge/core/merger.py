@@ -71,6 +71,9 @@ class RobotStatus:
     # its verified links: (parent, child, 3x3 covariance of (x, y, yaw) of the child's map
     # frame in the parent's, x, y in metres of the parent's frame, yaw in radians; None if unknown)
     link_covariances: Tuple[Tuple[str, str, Optional[np.ndarray]], ...] = ()
+    # seconds (time.time()) when its last map arrived (republished unchanged included); None
+    # before any
+    map_received: Optional[float] = None
 
 
 class MapMerger:
@@ -305,8 +308,9 @@ class MapMerger:
                 pl = self._placements.get(n)
                 links = tuple(sorted({b if a == n else a for (a, b) in self._edges if n in (a, b)}))
                 covs = tuple((a, b, e.cov) for (a, b), e in sorted(self._edges.items()) if n in (a, b))
+                m = self._maps.get(n)
                 out[n] = RobotStatus(pl is not None, n == ref, pl, last, other, self._errors.get(n, ''), links,
-                                     covs)
+                                     covs, m.received if m is not None else None)
             return out
 
     def export_state(self) -> Dict:

@@ -36,7 +36,7 @@ from .convert import (
     quaternion_yaw,
     transform_msg,
 )
-from .diagnostics import node_diagnostic, robot_diagnostic
+from .diagnostics import node_diagnostic, robot_diagnostic, stale_maps
 from .markers import markers_key, markers_msg
 from .params import check_library_param, resolve_params
 
@@ -149,6 +149,7 @@ class MergeNode:
                 rospy.logerr('multi_map_merge: %s (starting without its saved links)', e)
             self._saved_version = self.merger.state_version
         self._gone: Dict[str, bool] = {}
+        self._stale: set = set()   # robots whose maps stopped (logged once)
         self._frame_warned: Dict[str, str] = {}
         self._prior_subs: Dict[str, list] = {}
         self._prior_lock = threading.Lock()
@@ -202,8 +203,9 @@ class MergeNode:
             self._subscribe(robot)
 
     def _watch(self) -> None:
-        """Log a robot whose map publisher went away, and its return. Its last map and
-        transform stay in the merge: what it mapped is still true."""
+        """Log a robot whose map publisher went away, or whose maps stopped (none for over
+        ``~stale_map_timeout``), and its return. Its last map and transform stay in the merge:
+        what it mapped is still true."""
         with self._lock:
             subs = dict(self._subs)
         for robot, (map_sub, _) in subs.items():
@@ -214,6 +216,17 @@ class MergeNode:
             elif not gone and self._gone.get(robot):
                 rospy.loginfo('multi_map_merge: robot %s is back', robot)
             self._gone[robot] = gone
+        stale = stale_maps(self.merger.status(), self._gone, time.time(), self.cfg.stale_map_timeout)
+        for robot, age in sorted(stale.items()):
+            if robot not in self._stale:
+                rospy.logwarn('multi_map_merge: no map of robot %s for %.0f s (over ~stale_map_timeout, %g s), '
+                              'though %s still has a publisher: keeping its last map and transform',
+                              robot, age, self.cfg.stale_map_timeout, subs[robot][0].name if robot in subs else
+                              'its map topic')
+        for robot in sorted(self._stale - set(stale)):
+            if not self._gone.get(robot):
+                rospy.loginfo('multi_map_merge: maps of robot %s arrive again', robot)
+        self._stale = set(stale)
 
     def _subscribe(self, robot: str) -> None:
         with self._lock:
@@ -524,11 +537,12 @@ class MergeNode:
             stat.hardware_id = robot
             return stat
         return robot_diagnostic(robot, st, bool(self._gone.get(robot)), time.time(), stat,
-                                self.cfg.max_position_sigma)
+                                self.cfg.max_position_sigma, self.cfg.stale_map_timeout)
 
     def _node_diagnostic(self, stat):
         return node_diagnostic(self.merger.status(), self._gone, self._est_seconds, self._est_error,
-                               len(self.merger.frames()), len(self.merger.placements()), stat)
+                               len(self.merger.frames()), len(self.merger.placements()), stat,
+                               time.time(), self.cfg.stale_map_timeout)
 
     def _get_map(self, _req) -> GetMapResponse:
         """The merged map as /map has it now (gmapping's ``dynamic_map``); an error before

@@ -259,6 +259,7 @@ RULES: Dict[str, Tuple[Callable[[Any], Any], str]] = {
     'pose_graph': (_bool, 'true or false'),
     'ambiguity_margin': _UNIT,
     'max_position_sigma': _float(0.0, None, lo_open=True),
+    'stale_map_timeout': _float(0.0),
     'initial_poses': (_poses, 'a mapping robot: [x, y, yaw]'),
     'initial_pose_tolerance': (_tolerance, '[metres, radians]'),
     'trust_initial_poses': (_bool, 'true or false'),

@@ -308,6 +308,7 @@ def test_a_good_diagnostic_period_is_taken():
     ('robot_namespace_pattern', 'robots/tb3_*'), ('robot_namespace_pattern', 'tb3 *'),
     ('robots', ['tb3_0', 'tb3 1']), ('robots', ['0tb3']), ('robots', {'tb3_0': 1}),
     ('reference_robot', 'tb3 0'), ('reference_robot', 5),
+    ('stale_map_timeout', -1), ('stale_map_timeout', 'long'),
 ])
 def test_names_the_node_cannot_use_are_errors(name, value):
     """~map_topic a/b passed before, but discovery needs exactly /<robot>/<map_topic>: no robot
@@ -321,12 +322,13 @@ def test_names_the_node_can_use_are_taken():
     res = resolve_params({'map_topic': ' gmap ', 'map_updates_topic': 'slam/map_updates',
                           'merged_map_topic': '/team/map', 'merged_map_frame': 'world',
                           'robot_namespace_pattern': '/robot_?/', 'robots': '/tb3_0 tb3_1 tb3_0',
-                          'reference_robot': '/tb3_1'})
+                          'reference_robot': '/tb3_1', 'stale_map_timeout': 0})
     assert not res.errors and not res.warnings, (res.errors, res.warnings)
     c = res.config
     assert (c.map_topic, c.map_updates_topic, c.merged_map_topic) == ('gmap', 'slam/map_updates', '/team/map')
     assert (c.merged_map_frame, c.robot_namespace_pattern) == ('world', 'robot_?')
     assert c.robots == ['tb3_0', 'tb3_1'] and c.reference_robot == 'tb3_1'   # (as the maps are keyed)
+    assert c.stale_map_timeout == 0.0   # 0 = off
 
 
 def test_a_reference_robot_not_in_robots_is_an_error_and_the_first_of_robots_is_used():
