@@ -14,7 +14,7 @@ class MergeConfig:
     map_topic: str = 'map'                   # per-robot topic name under its namespace
     map_updates_topic: str = ''              # per-robot updates topic; '' = <map_topic>_updates
     merged_map_topic: str = 'map'            # output topic of the merged map (and <it>_metadata)
-    reference_robot: str = ''                # '' = the first robot in name order (robot 1)
+    reference_robot: str = ''                # '' = the first robot in name order (robot 1): merger.decide_reference
     merged_map_frame: str = 'map'            # frame of the merged map and parent of every TF
     # --- rates (node only), Hz ---
     estimation_rate: float = 0.5

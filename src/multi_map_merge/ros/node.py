@@ -38,7 +38,7 @@ from .convert import (
 )
 from .diagnostics import node_diagnostic, robot_diagnostic, stale_maps
 from .markers import markers_key, markers_msg
-from .params import check_library_param, resolve_params
+from .params import check_library_param, reference_message, resolve_params
 
 
 class _Updater(diagnostic_updater.Updater):
@@ -155,8 +155,13 @@ class MergeNode:
         self._prior_lock = threading.Lock()
         self._implicit_ref_prior = ''   # the reference given [0, 0, 0] for run-time priors
         self._tf_buffer = None          # made on the first prior given in another frame
+        # the reference robot: ~reference_robot, else the first of ~robots by name, else the first
+        # by name among the robots with a map until another is merged with it (decide_reference)
+        self._ref_logged = None
+        self._ref_lock = threading.Lock()
         if config.robots:
             self.merger.propose_reference(sorted(r.strip('/') for r in config.robots)[0])
+        self._log_reference()
         for r in config.robots:
             self._subscribe(r.strip('/'))
         self._ready = None   # the latest merged grid, composited off the publishing path
@@ -175,7 +180,8 @@ class MergeNode:
         rospy.loginfo('multi_map_merge: merging %s maps matching %s; reference %s; merged frame %s',
                       '/<robot>/' + config.map_topic,
                       config.robots or config.robot_namespace_pattern,
-                      config.reference_robot or '(first robot by name)', config.merged_map_frame)
+                      self.merger.reference or '(the first by name among the robots with a map, until '
+                      'another robot is merged with it)', config.merged_map_frame)
 
     # -- inputs
     def _discover(self, _event) -> None:
@@ -196,11 +202,18 @@ class MergeNode:
                 continue   # our own merged map (~merged_map_topic set to /<robot>/<map_topic>)
             if fnmatch.fnmatch(parts[0], self.cfg.robot_namespace_pattern):
                 found.append(parts[0])
-        if found:
-            # robot 1 = first by name among the robots seen at discovery, whichever map comes first
-            self.merger.propose_reference(sorted(found)[0])
         for robot in found:
             self._subscribe(robot)
+
+    def _log_reference(self) -> None:
+        """One info line when the reference robot is chosen, changes, or is fixed."""
+        choice = self.merger.reference_choice()
+        with self._ref_lock:
+            key = (choice.robot, choice.fixed)
+            if key == self._ref_logged or not choice.robot:
+                return
+            self._ref_logged = key
+        rospy.loginfo('multi_map_merge: %s', reference_message(choice))
 
     def _watch(self) -> None:
         """Log a robot whose map publisher went away, or whose maps stopped (none for over
@@ -387,6 +400,7 @@ class MergeNode:
         event = self.merger.update_map(robot, grid)
         if event:
             rospy.logwarn('multi_map_merge: %s', event)
+        self._log_reference()
 
     def _on_map(self, msg, robot: str) -> None:
         try:
@@ -417,6 +431,7 @@ class MergeNode:
             try:
                 for event in self.merger.estimate():
                     rospy.loginfo('multi_map_merge: %s', event)
+                self._log_reference()
                 self._est_error = None
             except Exception as e:  # a bad cycle must not end estimation for good
                 rospy.logerr('multi_map_merge: estimation failed: %r', e)
