@@ -132,12 +132,13 @@ class Listener:
 
 
 class RobotPlayer:
-    """Latched ``/<robot>/map`` publishers plus each robot's own TF chain at 10 Hz."""
+    """Latched ``/<robot>/map`` publishers plus each robot's own TF chain at 10 Hz. A robot of
+    ``late`` has no map topic until its first map is published (as a gmapping started later)."""
 
-    def __init__(self, robots):
+    def __init__(self, robots, late=()):
         self.robots = list(robots)
         self.pubs = {r: rospy.Publisher('/%s/map' % r, NumpyGrid, queue_size=1, latch=True)
-                     for r in self.robots}
+                     for r in self.robots if r not in late}
         self._tf = tf2_ros.TransformBroadcaster()
         self._stop = False
         self._thread = threading.Thread(target=self._tf_loop, daemon=True)
@@ -148,6 +149,8 @@ class RobotPlayer:
         self.robots.append(robot)
 
     def publish(self, robot, grid):
+        if robot not in self.pubs:
+            self.pubs[robot] = rospy.Publisher('/%s/map' % robot, NumpyGrid, queue_size=1, latch=True)
         self.pubs[robot].publish(grid_to_msg(grid, rospy.Time.now(), '%s/map' % robot))
 
     def stop(self):
@@ -323,6 +326,7 @@ class PiecesTest(unittest.TestCase):
 
     NODE = 'test_pieces'
     ROBOTS = ['tb3_0', 'tb3_1']
+    LATE = ()    # robots whose map topic appears only with their first map (RobotPlayer)
     POSES = [(0.0, 0.0, 0.0), (0.0, 0.0, 0.0)]
     WORLD = 'intel.yaml'
 
@@ -338,7 +342,7 @@ class PiecesTest(unittest.TestCase):
         cls.buf = tf2_ros.Buffer(rospy.Duration(30.0))
         cls.tfl = tf2_ros.TransformListener(cls.buf)
         cls.listen = Listener()
-        cls.player = RobotPlayer(cls.ROBOTS)
+        cls.player = RobotPlayer(cls.ROBOTS, cls.LATE)
 
     @classmethod
     def tearDownClass(cls):

@@ -54,6 +54,7 @@ class TestMergeNode(PiecesTest):
     NODE = 'test_merge_node'
     ROBOTS = ROBOTS
     POSES = POSES
+    LATE = ('tb3_0',)   # its gmapping starts last: no map topic until its first map
     t_full = None
 
     def _all_merged(self, after):
@@ -70,10 +71,22 @@ class TestMergeNode(PiecesTest):
         merge periods; then the whole pieces on grown grids with new origins: a new /map with
         more known cells, and every robot still merged."""
         t0 = time.time()
+        parts = {}
         for r, (g, _) in zip(ROBOTS, self.pieces):
-            part = revealed(g, START_RADIUS)
-            self.assertLess(part.width * part.height, g.width * g.height)
-            self.player.publish(r, part)
+            parts[r] = revealed(g, START_RADIUS)
+            self.assertLess(parts[r].width * parts[r].height, g.width * g.height)
+        # tb3_1's map comes first, alone (tb3_0's topic not even there): tb3_1 is the reference
+        # for now; tb3_0's map comes before any other robot is merged with it: tb3_0 takes the
+        # reference over, as it would have been had its map come first (test_2 and test_3 check
+        # the merged map and the TF in tb3_0's frame)
+        self.player.publish('tb3_1', parts['tb3_1'])
+        alone = wait_until(lambda: (lambda s: s if s and s[1].get('reference') == 'true' else None)(
+            self.listen.status('tb3_1', t0)), 20.0)
+        self.assertTrue(alone, 'tb3_1, alone with a map, never the reference: %s' % (self.listen.status('tb3_1'),))
+        time.sleep(1.0)   # a few discoveries (2 Hz) and estimation cycles with tb3_1 alone
+        for r in ROBOTS:
+            if r != 'tb3_1':
+                self.player.publish(r, parts[r])
         # the first (small) maps alone are enough to place every robot
         first = wait_until(lambda: self._all_merged(t0), 40.0)
         self.assertTrue(first, 'the small first maps were not all merged: %s' % self._messages())

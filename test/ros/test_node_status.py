@@ -5,19 +5,27 @@ Two robots carrying overlapping pieces of the Intel map are merged: the node's s
 its hardware id the node's name. Then one of the node's estimation worker processes is killed
 (SIGKILL, as the kernel's OOM killer does) and tb3_1's map grows, so that the next estimation
 cycle needs the pool: that cycle raises, and the node's status is ERROR with the exception's
-type and text; the cycle after starts a new pool, estimates, and the status is OK again. Last,
-tb3_1's map publisher goes away: the node's status is WARN naming tb3_1 as vanished.
+type and text; the cycle after starts a new pool, estimates, and the status is OK again. Then
+tb3_1's maps stop while its publisher stays (a stuck gmapping): after ~stale_map_timeout (4 s
+in node_status.test) the node's status is WARN naming it stale and tb3_1's own status says for
+how long, still merged; its maps come again and both are OK. Last, tb3_1's map publisher goes
+away: the node's status is WARN naming tb3_1 as vanished.
+
+The robots send their map every second, as gmapping does every map_update_interval (an
+unchanged map too): a map sent once would be stale after 4 s.
 """
 import math
 import os
 import signal
 import sys
+import threading
 import time
 import xmlrpc.client
 
 import numpy as np
 import rosgraph
 import rosnode
+import rospy
 import rostest
 from diagnostic_msgs.msg import DiagnosticStatus
 from rostest_helpers import MERGER, PiecesTest, wait_until
@@ -74,6 +82,30 @@ class TestNodeStatus(PiecesTest):
     ROBOTS = ['tb3_0', 'tb3_1']
     POSES = [(0.5, 1.0, math.radians(-30.0)), (-2.0, 3.0, math.radians(150.0))]
     merged_at = None
+    STALE_MAP_TIMEOUT = 4.0   # node_status.test's ~stale_map_timeout
+
+    @classmethod
+    def setUpClass(cls):
+        super().setUpClass()
+        cls.latest = {}              # robot -> the grid it sends every second
+        cls.feeding = set()          # the robots sending now
+        cls.feed_lock = threading.Lock()
+        threading.Thread(target=cls._feed, daemon=True).start()
+
+    @classmethod
+    def _feed(cls):
+        while not rospy.is_shutdown():
+            with cls.feed_lock:
+                for r in sorted(cls.feeding):
+                    cls.player.publish(r, cls.latest[r])
+            time.sleep(1.0)
+
+    def send(self, robot, grid):
+        """``robot``'s map is ``grid`` from now on, sent now and every second."""
+        with self.feed_lock:
+            self.latest[robot] = grid
+            self.feeding.add(robot)
+            self.player.publish(robot, grid)
 
     def _node(self, after, level, text=''):
         st = self.listen.node_status(after)
@@ -82,7 +114,7 @@ class TestNodeStatus(PiecesTest):
     def test_1_merged_is_ok(self):
         t0 = time.time()
         for k, (g, _) in enumerate(self.pieces):
-            self.player.publish(self.ROBOTS[k], g)
+            self.send(self.ROBOTS[k], g)
         st = wait_until(lambda: self._node(t0, DiagnosticStatus.OK), 40.0)
         self.assertTrue(st, 'the node status never OK with two robots: %s' % (self.listen.node_status(),))
         s, kv = st
@@ -108,7 +140,7 @@ class TestNodeStatus(PiecesTest):
         k = next(i for i in range(len(rows)) if rows[i] > 10 and cols[i] > 10
                  and (data[rows[i]:rows[i] + 6, cols[i]:cols[i] + 6] == -1).all())
         data[rows[k]:rows[k] + 6, cols[k]:cols[k] + 6] = 100
-        self.player.publish('tb3_1', Grid(data, g.resolution, g.origin, g.frame_id))
+        self.send('tb3_1', Grid(data, g.resolution, g.origin, g.frame_id))
         st = wait_until(lambda: self._node(t0, DiagnosticStatus.ERROR), 20.0)
         self.assertTrue(st, 'no ERROR after a worker was killed: %s' % (self.listen.node_status(),))
         s, kv = st
@@ -127,9 +159,48 @@ class TestNodeStatus(PiecesTest):
         self.assertNotIn(workers[0], worker_pids(node))
         self.assert_tf(1)
 
-    def test_3_vanished_robot_is_warn(self):
+    def test_3_stopped_maps_are_warn_then_clear(self):
+        """tb3_1's publisher stays, its maps stop: WARN naming it (node and robot), merged
+        still; they come again: OK."""
         self.assertIsNotNone(self.merged_at, 'test_1 did not run')
-        self.player.pubs['tb3_1'].unregister()
+        with self.feed_lock:
+            self.feeding.discard('tb3_1')
+        t0 = time.time()
+        st = wait_until(lambda: self._node(t0, DiagnosticStatus.WARN, 'stale: tb3_1'), 20.0)
+        self.assertTrue(st, 'no WARN naming tb3_1 stale after its maps stopped: %s' % (self.listen.node_status(),))
+        t_warn = time.time()
+        s, kv = st
+        print('node with tb3_1 stopped: level %d "%s" %s' % (s.level, s.message, kv))
+        self.assertGreaterEqual(time.time() - t0, self.STALE_MAP_TIMEOUT - 1.5)   # not at once
+        self.assertEqual(kv['stale'], 'tb3_1')
+        self.assertEqual((kv['vanished'], kv['merged']), ('-', '2'))
+        self.assertNotIn('tb3_0', s.message)      # still sending
+        r = wait_until(lambda: self.listen.status('tb3_1', t_warn), 5.0)   # (stale since the node said so)
+        self.assertTrue(r)
+        print('tb3_1 stopped: level %d "%s" %s' % (r[0].level, r[0].message, r[1]))
+        self.assertEqual(r[0].level, DiagnosticStatus.WARN)
+        self.assertIn('no map for', r[0].message)
+        self.assertGreater(float(r[1]['map_age_s']), self.STALE_MAP_TIMEOUT)
+        self.assertEqual((r[1]['publisher'], r[1]['merged']), ('ok', 'true'))   # kept merged
+        r0 = self.listen.status('tb3_0', t0)
+        self.assertLess(float(r0[1]['map_age_s']), 2.5)
+        # its maps come again: OK
+        with self.feed_lock:
+            self.feeding.add('tb3_1')
+        t1 = time.time()
+        st = wait_until(lambda: self._node(t1, DiagnosticStatus.OK), 10.0)
+        self.assertTrue(st, 'still not OK once tb3_1 sends maps again: %s' % (self.listen.node_status(),))
+        self.assertEqual(st[1]['stale'], '-')
+        t_ok = time.time()
+        r = wait_until(lambda: self.listen.status('tb3_1', t_ok), 5.0)
+        self.assertEqual(r[0].level, DiagnosticStatus.OK, r[0].message)
+        self.assertLess(float(r[1]['map_age_s']), 2.5)
+
+    def test_4_vanished_robot_is_warn(self):
+        self.assertIsNotNone(self.merged_at, 'test_1 did not run')
+        with self.feed_lock:
+            self.feeding.discard('tb3_1')
+            self.player.pubs['tb3_1'].unregister()
         t0 = time.time()
         st = wait_until(lambda: self._node(t0, DiagnosticStatus.WARN, 'tb3_1'), 15.0)
         self.assertTrue(st, 'no WARN naming tb3_1 after its map publisher went away: %s'

@@ -14,13 +14,15 @@ class MergeConfig:
     map_topic: str = 'map'                   # per-robot topic name under its namespace
     map_updates_topic: str = ''              # per-robot updates topic; '' = <map_topic>_updates
     merged_map_topic: str = 'map'            # output topic of the merged map (and <it>_metadata)
-    reference_robot: str = ''                # '' = the first robot in name order (robot 1)
+    reference_robot: str = ''                # '' = the first robot in name order (robot 1): merger.decide_reference
     merged_map_frame: str = 'map'            # frame of the merged map and parent of every TF
     # --- rates (node only), Hz ---
     estimation_rate: float = 0.5
     merge_rate: float = 2.0
     discovery_rate: float = 0.5
     tf_rate: float = 20.0
+    # --- input health (node only) ---
+    stale_map_timeout: float = 30.0          # s: a robot whose last map is older is WARN; 0 = off
     # --- grid -> image ---
     free_thresh: float = 19.6                # percent: 0..free_thresh is free
     occupied_thresh: float = 65.0            # percent: >= occupied_thresh is occupied

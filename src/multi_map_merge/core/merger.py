@@ -4,7 +4,8 @@
     transform + inlier ratio --(4) verify, keep the most reliable--> placements
     --(5) warp + composite--> merged grid, --(6) poses--> TF of every robot's map frame
 
-Frames: the merged frame is the reference robot's map frame (the paper's Map 1). A robot's
+Frames: the merged frame is the reference robot's map frame (the paper's Map 1; which robot
+that is: :func:`decide_reference`). A robot's
 *placement* is the pose ``T_merged_k`` of its map frame in the merged frame (metres, radians).
 It is expressed between frames, not grids, so it stays valid while gmapping grows the grid.
 
@@ -32,6 +33,36 @@ from .placement import Placement
 from .state import link_dict, link_from_dict, placement_dict
 from .transforms import image_to_pose, inverse, pose_distance, se2
 from .workers import PairWorkers
+
+#: why the reference robot is the one it is (:meth:`MapMerger.reference_choice`)
+REF_PARAMETER = 'parameter'          # config.reference_robot
+REF_PROPOSED = 'proposed'            # propose_reference (the node: the first of ~robots by name)
+REF_FIRST_BY_NAME = 'first by name'  # decide_reference
+
+
+def decide_reference(current: str, fixed: bool, with_maps: Sequence[str],
+                     placed: Sequence[str]) -> Tuple[str, bool]:
+    """(the reference robot, whether it is fixed from now on) when none was given: the first
+    by name among the robots ``with_maps`` while the merge is the reference's map alone (none
+    of the robots ``placed`` relative to ``current`` is another robot); fixed once another is,
+    so that no transform published with a merge ever jumps. The same robots give the same
+    reference whichever map came first (a later map of a lower name takes the reference over
+    only while nothing else is merged). A ``fixed`` reference stays."""
+    if fixed:
+        return current, True
+    if current and any(n != current for n in placed):
+        return current, True
+    return (min(with_maps) if with_maps else ''), False
+
+
+@dataclass
+class ReferenceChoice:
+    """Which robot is the reference, whether it can still change, and why it is that one."""
+
+    robot: str
+    fixed: bool
+    why: str                           # REF_PARAMETER, REF_PROPOSED or REF_FIRST_BY_NAME
+    with_maps: Tuple[str, ...] = ()    # the robots with a map, by name
 
 
 @dataclass
@@ -71,6 +102,9 @@ class RobotStatus:
     # its verified links: (parent, child, 3x3 covariance of (x, y, yaw) of the child's map
     # frame in the parent's, x, y in metres of the parent's frame, yaw in radians; None if unknown)
     link_covariances: Tuple[Tuple[str, str, Optional[np.ndarray]], ...] = ()
+    # seconds (time.time()) when its last map arrived (republished unchanged included); None
+    # before any
+    map_received: Optional[float] = None
 
 
 class MapMerger:
@@ -83,6 +117,8 @@ class MapMerger:
         self._maps: Dict[str, RobotMap] = {}
         self._version = 0
         self._reference: str = c.reference_robot
+        self._reference_fixed = bool(c.reference_robot)   # decide_reference: settled for good
+        self._reference_why = REF_PARAMETER if c.reference_robot else REF_FIRST_BY_NAME
         self._workers = PairWorkers(c)   # crops and features of the maps, the worker pool
         self._edges: Dict[Tuple[str, str], Edge] = {}
         self._tried: Dict[Tuple[str, str], Tuple[int, int]] = {}
@@ -100,22 +136,49 @@ class MapMerger:
     # ------------------------------------------------------------------ inputs
     @property
     def reference(self) -> str:
-        """The reference robot: ``reference_robot`` or, if empty, the first robot by name."""
+        """The reference robot: ``reference_robot``, or one proposed, or else the first robot
+        by name among those with a map until another robot is merged with it
+        (:func:`decide_reference`); '' before any map."""
         with self._lock:
             return self._reference_locked()
 
     def _reference_locked(self) -> str:
-        if not self._reference and self._maps:
-            self._reference = sorted(self._maps)[0]
         return self._reference
 
-    def propose_reference(self, name: str) -> str:
-        """Make ``name`` the reference unless one is set already (``reference_robot``, or a
-        previous choice: the merged frame never changes once chosen). Returns the reference."""
+    def reference_choice(self) -> ReferenceChoice:
         with self._lock:
-            if not self._reference:
-                self._reference = name
+            return ReferenceChoice(self._reference, self._reference_fixed, self._reference_why,
+                                   tuple(sorted(self._maps)))
+
+    def propose_reference(self, name: str) -> str:
+        """Make ``name`` the reference for good unless one is fixed already (``reference_robot``,
+        or a previous choice: the merged frame never changes once fixed). Returns the
+        reference."""
+        with self._lock:
+            if not self._reference_fixed:
+                self._set_reference_locked(name)
+                self._reference_fixed = True
+                self._reference_why = REF_PROPOSED
             return self._reference
+
+    def _set_reference_locked(self, name: str) -> None:
+        if name == self._reference:
+            return
+        # Every placement is a pose in the former reference's frame: only the new reference is
+        # placed (at identity) until the next cycle places the others under it (a cycle under
+        # way with the former one is discarded, see _place)
+        old, self._reference = self._reference, name
+        self._placements.clear()
+        self._patches.clear()
+        self._graph_key = None
+        if old and name in self._maps:
+            self._placements[name] = Placement(np.eye(3), 1.0, 1.0, 0, '', (name,), time.time())
+
+    def _settle_reference_locked(self) -> None:
+        ref, fixed = decide_reference(self._reference, self._reference_fixed, list(self._maps),
+                                      list(self._placements))
+        self._set_reference_locked(ref)
+        self._reference_fixed = fixed
 
     def update_map(self, name: str, grid: Grid) -> Optional[str]:
         """Take a robot's new grid (already validated, see :func:`grid.make_grid`).
@@ -139,6 +202,8 @@ class MapMerger:
             self._version += 1
             self._maps[name] = RobotMap(name, grid, self._version, time.time(), life=self._lives.get(name, 0))
             self._errors.pop(name, None)
+            if prev is None:
+                self._settle_reference_locked()
         if self._default_thresholds():
             # Classify the map once, as it arrives, outside the lock (a big canvas takes a
             # while): estimation and compositing find its levels, known box and values ready.
@@ -174,6 +239,7 @@ class MapMerger:
             self._maps.pop(name, None)
             self._workers.forget(name)
             self._forget_locked(name)
+            self._settle_reference_locked()
 
     def set_initial_pose(self, name: str, pose: Optional[Sequence[float]]) -> List[str]:
         """Set (``[x, y, yaw]``, the meaning of ``initial_poses``) or remove (None) one robot's
@@ -305,8 +371,9 @@ class MapMerger:
                 pl = self._placements.get(n)
                 links = tuple(sorted({b if a == n else a for (a, b) in self._edges if n in (a, b)}))
                 covs = tuple((a, b, e.cov) for (a, b), e in sorted(self._edges.items()) if n in (a, b))
+                m = self._maps.get(n)
                 out[n] = RobotStatus(pl is not None, n == ref, pl, last, other, self._errors.get(n, ''), links,
-                                     covs)
+                                     covs, m.received if m is not None else None)
             return out
 
     def export_state(self) -> Dict:
@@ -447,6 +514,8 @@ class MapMerger:
         with self._lock:
             if ref in maps and self._from_former_life_locked(maps[ref]):
                 return []            # the reference restarted meanwhile: every placement is void
+            if ref != self._reference:
+                return []            # another robot became the reference meanwhile: as void
             # robots forgotten since the cycle began stay unplaced until estimated again
             gone = {n for n in new if n in maps and self._from_former_life_locked(maps[n])}
             new = {n: p for n, p in new.items() if n not in gone}
@@ -454,6 +523,7 @@ class MapMerger:
             if set(new) != set(self._placements) or any(new[n] is not self._placements.get(n) for n in new):
                 self.state_version += 1
             self._placements = new
+            self._settle_reference_locked()   # fixed once another robot is merged with it
         return events
 
     def _patch(self, m: RobotMap, T: np.ndarray, lattice: Lattice) -> Optional[Patch]:

@@ -32,19 +32,45 @@ def weak_reason(pl: Placement, max_position_sigma: float) -> str:
     return '2-sigma %.3f m > max_position_sigma %.3f m' % (2.0 * d['sigma_position'], max_position_sigma)
 
 
+def map_age(st: RobotStatus, now: float) -> Optional[float]:
+    """Seconds since the robot's last map arrived (None before any)."""
+    return None if st.map_received is None else max(0.0, now - st.map_received)
+
+
+def stale_maps(status: Dict[str, RobotStatus], gone: Dict[str, bool], now: float,
+               stale_map_timeout: float) -> Dict[str, float]:
+    """Robot -> its map's age, for the robots whose publisher is still there but whose last map
+    is older than ``stale_map_timeout`` seconds (0: none ever). A robot whose publisher went away
+    is said to have vanished instead."""
+    if stale_map_timeout <= 0:
+        return {}
+    out = {}
+    for robot, st in status.items():
+        age = map_age(st, now)
+        if age is not None and age > stale_map_timeout and not gone.get(robot):
+            out[robot] = age
+    return out
+
+
 def robot_diagnostic(robot: str, st: RobotStatus, gone: bool, now: float,
-                     out: Optional[DiagnosticStatus] = None, max_position_sigma: float = 0.1) -> DiagnosticStatus:
+                     out: Optional[DiagnosticStatus] = None, max_position_sigma: float = 0.1,
+                     stale_map_timeout: float = 0.0) -> DiagnosticStatus:
     """One robot's status: merged or not, via which robot, the placement, its quality and how
     well it is pinned (``sigma_position``: metres, '0.0000' for the reference, '-' when unknown;
-    ``weak``), the last pair attempt, input errors, and whether its map publisher is ``gone``.
-    A merged robot weakly pinned (over ``max_position_sigma``, metres, or at its prior) is
-    WARN. The hardware id is the robot (readers key the robots' statuses by it). ``now``: wall
-    seconds, for the placement's age."""
+    ``weak``), the last pair attempt, input errors, whether its map publisher is ``gone``, and
+    how old its last map is (``map_age_s``). A merged robot weakly pinned (over
+    ``max_position_sigma``, metres, or at its prior) is WARN, and so is a robot whose publisher
+    is there but whose last map is older than ``stale_map_timeout`` seconds (0: off; its last map
+    stays merged). The hardware id is the robot (readers key the robots' statuses by it).
+    ``now``: wall seconds, for the placement's and the map's ages."""
     s = out if out is not None else DiagnosticStatus()
     s.hardware_id = robot
     kv = [('merged', str(st.merged).lower()), ('reference', str(st.reference).lower()),
           ('linked_to', ' '.join(st.linked_to) or '-'),
           ('publisher', 'gone' if gone else 'ok')]
+    age = map_age(st, now)
+    if age is not None:
+        kv += [('map_age_s', '%.1f' % age)]
     if st.placement is not None:
         d = placement_dict(st.placement)
         kv += [('via', d['via'] or '-'), ('chain', ' -> '.join(d['chain']))]
@@ -78,20 +104,27 @@ def robot_diagnostic(robot: str, st: RobotStatus, gone: bool, now: float,
     if gone:
         s.message += ' (vanished: no publisher of its map; its last map and transform are kept)'
         s.level = max(s.level, DiagnosticStatus.WARN)
+    elif robot in stale_maps({robot: st}, {}, now, stale_map_timeout):
+        s.message += '; no map for %.0f s (over ~stale_map_timeout, %g s; its last map is kept)' % (
+            age, stale_map_timeout)
+        s.level = max(s.level, DiagnosticStatus.WARN)
     s.values = [KeyValue(k, v) for k, v in kv]
     return s
 
 
 def node_diagnostic(status: Dict[str, RobotStatus], gone: Dict[str, bool], est_seconds: float,
                     est_error: Optional[BaseException], robots: int, merged: int,
-                    out: Optional[DiagnosticStatus] = None) -> DiagnosticStatus:
+                    out: Optional[DiagnosticStatus] = None, now: Optional[float] = None,
+                    stale_map_timeout: float = 0.0) -> DiagnosticStatus:
     """The node's own status. ERROR when the last estimation cycle raised ``est_error`` (its
     type and text in the message); else WARN naming the robots that vanished (no publisher of
-    their map), are not merged, are merged but weakly pinned, or whose last input was refused;
-    else OK. Values: the last cycle's seconds (``last_estimation_s``), how many robots and how
-    many merged, which are not merged, vanished or weakly pinned, the last error. The hardware
-    id is left to the caller (the updater sets the node's)."""
+    their map), whose maps stopped (none for over ``stale_map_timeout`` seconds at wall time
+    ``now``, publisher still there), are not merged, are merged but weakly pinned, or whose last
+    input was refused; else OK. Values: the last cycle's seconds (``last_estimation_s``), how
+    many robots and how many merged, which are not merged, vanished, stale or weakly pinned, the
+    last error. The hardware id is left to the caller (the updater sets the node's)."""
     s = out if out is not None else DiagnosticStatus()
+    stale = stale_maps(status, gone, now, stale_map_timeout) if now is not None else {}
     vanished = sorted(r for r, g in gone.items() if g)
     unmerged = sorted(r for r, st in status.items() if not st.merged)
     weak = sorted(r for r, st in status.items() if st.merged and st.placement is not None and st.placement.weak)
@@ -99,7 +132,7 @@ def node_diagnostic(status: Dict[str, RobotStatus], gone: Dict[str, bool], est_s
     if est_error is not None:
         s.level = DiagnosticStatus.ERROR
         s.message = 'estimation failed: %s' % error_text(est_error)
-    elif vanished or unmerged or weak or refused or not status:
+    elif vanished or stale or unmerged or weak or refused or not status:
         s.level = DiagnosticStatus.WARN
         parts: List[str] = []
         if not status:
@@ -110,6 +143,8 @@ def node_diagnostic(status: Dict[str, RobotStatus], gone: Dict[str, bool], est_s
             parts.append('weakly pinned: %s' % ', '.join(weak))
         if vanished:
             parts.append('vanished: %s' % ', '.join(vanished))
+        if stale:
+            parts.append('stale: %s' % ', '.join('%s (no map for %.0f s)' % (r, stale[r]) for r in sorted(stale)))
         if refused:
             parts.append('input ignored: %s' % ', '.join(refused))
         s.message = '; '.join(parts)
@@ -121,6 +156,7 @@ def node_diagnostic(status: Dict[str, RobotStatus], gone: Dict[str, bool], est_s
                 KeyValue('merged', str(merged)),
                 KeyValue('not_merged', ' '.join(unmerged) or '-'),
                 KeyValue('vanished', ' '.join(vanished) or '-'),
+                KeyValue('stale', ' '.join(sorted(stale)) or '-'),
                 KeyValue('weakly_pinned', ' '.join(weak) or '-'),
                 KeyValue('last_error', error_text(est_error) if est_error is not None else '-')]
     return s

@@ -36,17 +36,52 @@ from .convert import (
     quaternion_yaw,
     transform_msg,
 )
-from .diagnostics import node_diagnostic, robot_diagnostic
+from .diagnostics import node_diagnostic, robot_diagnostic, stale_maps
 from .markers import markers_key, markers_msg
-from .params import resolve_params
+from .params import check_library_param, reference_message, resolve_params
+
+
+class _Updater(diagnostic_updater.Updater):
+    """diagnostic_updater's Updater, whose ``~diagnostic_period`` (read again from the parameter
+    server 4 times a second) is checked as the node's own parameters are: a bad value ('abc',
+    0, a list) is logged once and the last good period kept, where the library would raise at
+    every update and /diagnostics go silent."""
+
+    def __init__(self, period: float, given):
+        super().__init__()
+        self.period = period
+        self._given = given     # the value last read (an invalid one is logged once)
+
+    def _check_diagnostic_period(self) -> None:
+        now = rospy.Time.now()
+        if now < self.last_time_period_checked + rospy.Duration(0.25):
+            return
+        try:
+            given = rospy.get_param_cached('~diagnostic_period', 1.0)
+        except Exception:   # the master gone for a moment: keep the period
+            return
+        self.last_time_period_checked = now
+        if repr(given) == repr(self._given):   # (repr: nan is not equal to itself)
+            return
+        self._given = given
+        period, error = check_library_param('diagnostic_period', given)
+        if error:
+            rospy.logerr('multi_map_merge: %s (keeping %g s)', error, self.period)
+        else:
+            self.period = period
 
 
 def load_config() -> MergeConfig:
+    return load_params().config
+
+
+def load_params():
     """Every parameter of the node, read once from the private namespace and validated
     (:func:`resolve_params`): an invalid value is logged as an error naming the parameter and
     what it accepts, and its default is used; an unknown name gets a warning naming the closest
     known one; m-explore's names are read as aliases. The defaults are MergeConfig's, which
-    equal config/map_merge.yaml."""
+    equal config/map_merge.yaml. Returns the :class:`Resolved` (its ``config`` is the
+    node's)."""
     try:
         given = rospy.get_param('~', {})
     except KeyError:
@@ -58,7 +93,7 @@ def load_config() -> MergeConfig:
         rospy.logwarn('multi_map_merge: %s', line)
     for line in res.notes:
         rospy.loginfo('multi_map_merge: %s', line)
-    return res.config
+    return res
 
 
 class MergeNode:
@@ -72,7 +107,7 @@ class MergeNode:
     state on ``/diagnostics`` (``diagnostic_updater``).
     """
 
-    def __init__(self, config: MergeConfig):
+    def __init__(self, config: MergeConfig, diagnostic_period: float = 1.0, given_period=1.0):
         self.cfg = config
         self.merger = MapMerger(config)
         self._subs: Dict[str, list] = {}
@@ -98,7 +133,7 @@ class MergeNode:
         self._est_error: Optional[BaseException] = None   # what the last estimation cycle raised
         # /diagnostics: the node's status and one per robot (added as robots appear), at
         # ~diagnostic_period (the updater's parameter, 1 s by default)
-        self._updater = diagnostic_updater.Updater()
+        self._updater = _Updater(diagnostic_period, given_period)
         self._updater.setHardwareID(rospy.get_name().lstrip('/'))
         self._updater.add('node', self._node_diagnostic)
         self._diag_robots: set = set()
@@ -114,13 +149,19 @@ class MergeNode:
                 rospy.logerr('multi_map_merge: %s (starting without its saved links)', e)
             self._saved_version = self.merger.state_version
         self._gone: Dict[str, bool] = {}
+        self._stale: set = set()   # robots whose maps stopped (logged once)
         self._frame_warned: Dict[str, str] = {}
         self._prior_subs: Dict[str, list] = {}
         self._prior_lock = threading.Lock()
         self._implicit_ref_prior = ''   # the reference given [0, 0, 0] for run-time priors
         self._tf_buffer = None          # made on the first prior given in another frame
+        # the reference robot: ~reference_robot, else the first of ~robots by name, else the first
+        # by name among the robots with a map until another is merged with it (decide_reference)
+        self._ref_logged = None
+        self._ref_lock = threading.Lock()
         if config.robots:
             self.merger.propose_reference(sorted(r.strip('/') for r in config.robots)[0])
+        self._log_reference()
         for r in config.robots:
             self._subscribe(r.strip('/'))
         self._ready = None   # the latest merged grid, composited off the publishing path
@@ -139,7 +180,8 @@ class MergeNode:
         rospy.loginfo('multi_map_merge: merging %s maps matching %s; reference %s; merged frame %s',
                       '/<robot>/' + config.map_topic,
                       config.robots or config.robot_namespace_pattern,
-                      config.reference_robot or '(first robot by name)', config.merged_map_frame)
+                      self.merger.reference or '(the first by name among the robots with a map, until '
+                      'another robot is merged with it)', config.merged_map_frame)
 
     # -- inputs
     def _discover(self, _event) -> None:
@@ -160,15 +202,23 @@ class MergeNode:
                 continue   # our own merged map (~merged_map_topic set to /<robot>/<map_topic>)
             if fnmatch.fnmatch(parts[0], self.cfg.robot_namespace_pattern):
                 found.append(parts[0])
-        if found:
-            # robot 1 = first by name among the robots seen at discovery, whichever map comes first
-            self.merger.propose_reference(sorted(found)[0])
         for robot in found:
             self._subscribe(robot)
 
+    def _log_reference(self) -> None:
+        """One info line when the reference robot is chosen, changes, or is fixed."""
+        choice = self.merger.reference_choice()
+        with self._ref_lock:
+            key = (choice.robot, choice.fixed)
+            if key == self._ref_logged or not choice.robot:
+                return
+            self._ref_logged = key
+        rospy.loginfo('multi_map_merge: %s', reference_message(choice))
+
     def _watch(self) -> None:
-        """Log a robot whose map publisher went away, and its return. Its last map and
-        transform stay in the merge: what it mapped is still true."""
+        """Log a robot whose map publisher went away, or whose maps stopped (none for over
+        ``~stale_map_timeout``), and its return. Its last map and transform stay in the merge:
+        what it mapped is still true."""
         with self._lock:
             subs = dict(self._subs)
         for robot, (map_sub, _) in subs.items():
@@ -179,6 +229,17 @@ class MergeNode:
             elif not gone and self._gone.get(robot):
                 rospy.loginfo('multi_map_merge: robot %s is back', robot)
             self._gone[robot] = gone
+        stale = stale_maps(self.merger.status(), self._gone, time.time(), self.cfg.stale_map_timeout)
+        for robot, age in sorted(stale.items()):
+            if robot not in self._stale:
+                rospy.logwarn('multi_map_merge: no map of robot %s for %.0f s (over ~stale_map_timeout, %g s), '
+                              'though %s still has a publisher: keeping its last map and transform',
+                              robot, age, self.cfg.stale_map_timeout, subs[robot][0].name if robot in subs else
+                              'its map topic')
+        for robot in sorted(self._stale - set(stale)):
+            if not self._gone.get(robot):
+                rospy.loginfo('multi_map_merge: maps of robot %s arrive again', robot)
+        self._stale = set(stale)
 
     def _subscribe(self, robot: str) -> None:
         with self._lock:
@@ -339,6 +400,7 @@ class MergeNode:
         event = self.merger.update_map(robot, grid)
         if event:
             rospy.logwarn('multi_map_merge: %s', event)
+        self._log_reference()
 
     def _on_map(self, msg, robot: str) -> None:
         try:
@@ -369,6 +431,7 @@ class MergeNode:
             try:
                 for event in self.merger.estimate():
                     rospy.loginfo('multi_map_merge: %s', event)
+                self._log_reference()
                 self._est_error = None
             except Exception as e:  # a bad cycle must not end estimation for good
                 rospy.logerr('multi_map_merge: estimation failed: %r', e)
@@ -489,11 +552,12 @@ class MergeNode:
             stat.hardware_id = robot
             return stat
         return robot_diagnostic(robot, st, bool(self._gone.get(robot)), time.time(), stat,
-                                self.cfg.max_position_sigma)
+                                self.cfg.max_position_sigma, self.cfg.stale_map_timeout)
 
     def _node_diagnostic(self, stat):
         return node_diagnostic(self.merger.status(), self._gone, self._est_seconds, self._est_error,
-                               len(self.merger.frames()), len(self.merger.placements()), stat)
+                               len(self.merger.frames()), len(self.merger.placements()), stat,
+                               time.time(), self.cfg.stale_map_timeout)
 
     def _get_map(self, _req) -> GetMapResponse:
         """The merged map as /map has it now (gmapping's ``dynamic_map``); an error before
@@ -516,5 +580,6 @@ def run_merge_node() -> None:
     # memory (core/workers.py); a ~workers other than the default restarts them
     start_pool(0)
     rospy.init_node('map_merge')
-    MergeNode(load_config())
+    res = load_params()
+    MergeNode(res.config, res.library['diagnostic_period'], res.library_given.get('diagnostic_period', 1.0))
     rospy.spin()

@@ -13,11 +13,14 @@ at its default, :meth:`MergeConfig.former_name_wins`).
 from __future__ import annotations
 
 import difflib
+import fnmatch
 import math
+import re
 from dataclasses import dataclass, field, fields
 from typing import Any, Callable, Dict, List, Mapping, Optional, Tuple
 
 from ..core.config import MergeConfig
+from ..core.merger import REF_PARAMETER, REF_PROPOSED, ReferenceChoice
 
 
 class _Invalid(ValueError):
@@ -102,12 +105,90 @@ def _string(nonempty: bool) -> Tuple[Callable[[Any], Any], str]:
     return conv, what
 
 
+# ROS graph names (rosgraph.names.is_legal_name, without importing rosgraph): a name element
+# is a letter then letters, digits, underscores
+_ELEMENT = r'[A-Za-z][A-Za-z0-9_]*'
+_RELATIVE_RE = re.compile(r'^%s(/%s)*$' % (_ELEMENT, _ELEMENT))
+_NAME_RE = re.compile(r'^[~/]?%s(/%s)*$' % (_ELEMENT, _ELEMENT))
+_ELEMENT_RE = re.compile(r'^%s$' % _ELEMENT)
+
+
+def _text(v: Any, what: str) -> str:
+    if isinstance(v, (dict, list, tuple)) or v is None or isinstance(v, bool):
+        raise _Invalid(what)
+    return str(v).strip()
+
+
+def _topic_element(v: Any) -> str:
+    """~map_topic: discovery looks for topics of exactly two elements, /<robot>/<map_topic>."""
+    what = ("one topic name under each robot's namespace, without '/' (discovery looks for "
+            "/<robot>/<map_topic>), e.g. map")
+    s = _text(v, what)
+    if not _ELEMENT_RE.match(s):
+        raise _Invalid(what)
+    return s
+
+
+def _relative_topic(v: Any) -> str:
+    """~map_updates_topic: '' or a name relative to each robot's namespace."""
+    what = "empty or a topic name relative to each robot's namespace (no leading '/'), e.g. map_updates"
+    s = _text(v, what)
+    if s and not _RELATIVE_RE.match(s):
+        raise _Invalid(what)
+    return s
+
+
+def _topic_name(v: Any) -> str:
+    """~merged_map_topic: a legal ROS topic name, relative (to the node's namespace) or global."""
+    what = 'a legal ROS topic name, e.g. map or /map'
+    s = _text(v, what)
+    if not _NAME_RE.match(s) or s.startswith('~'):
+        raise _Invalid(what)
+    return s
+
+
+def _frame_id(v: Any) -> str:
+    what = "a frame id: not empty, no spaces, no leading '/' (tf2 refuses one)"
+    s = _text(v, what)
+    if not s or s.startswith('/') or any(ch.isspace() for ch in s):
+        raise _Invalid(what)
+    return s
+
+
+def _pattern(v: Any) -> str:
+    """~robot_namespace_pattern: matched against the single element <robot> of /<robot>/<map_topic>."""
+    what = "a non-empty fnmatch pattern of one namespace element, without '/', e.g. tb3_*"
+    s = _text(v, what).strip('/')
+    if not s or '/' in s or any(ch.isspace() for ch in s):
+        raise _Invalid(what)
+    return s
+
+
+def _robot_name(v: Any) -> str:
+    """~reference_robot: '' or a robot namespace (a leading '/' is dropped)."""
+    what = "empty or a robot namespace, e.g. tb3_0"
+    s = _text(v, what).strip('/')
+    if s and not _RELATIVE_RE.match(s):
+        raise _Invalid(what)
+    return s
+
+
 def _string_list(v: Any) -> List[str]:
+    what = 'a list of robot namespaces (or one string of them separated by spaces), e.g. [tb3_0, tb3_1]'
     if isinstance(v, str):
-        return v.split()
-    if isinstance(v, (list, tuple)) and all(isinstance(x, str) and x.strip() for x in v):
-        return [x.strip() for x in v]
-    raise _Invalid('a list of robot namespaces (or one string of them separated by spaces)')
+        names = v.split()
+    elif isinstance(v, (list, tuple)) and all(isinstance(x, str) and x.strip() for x in v):
+        names = [x.strip() for x in v]
+    else:
+        raise _Invalid(what)
+    names = [n.strip('/') for n in names]
+    if not all(_RELATIVE_RE.match(n) for n in names):
+        raise _Invalid(what)
+    out: List[str] = []
+    for n in names:
+        if n not in out:
+            out.append(n)
+    return out
 
 
 def _poses(v: Any) -> Dict[str, List[float]]:
@@ -144,13 +225,13 @@ _PERCENT = _float(0.0, 100.0)
 
 #: every MergeConfig field: (converter, what it accepts); a unit test checks none is missing
 RULES: Dict[str, Tuple[Callable[[Any], Any], str]] = {
-    'robot_namespace_pattern': _string(True),
+    'robot_namespace_pattern': (_pattern, 'an fnmatch pattern of one namespace element'),
     'robots': (_string_list, 'a list of robot namespaces'),
-    'map_topic': _string(True),
-    'map_updates_topic': _string(False),
-    'merged_map_topic': _string(True),
-    'reference_robot': _string(False),
-    'merged_map_frame': _string(True),
+    'map_topic': (_topic_element, 'one topic name under the robot namespace'),
+    'map_updates_topic': (_relative_topic, 'a relative topic name'),
+    'merged_map_topic': (_topic_name, 'a topic name'),
+    'reference_robot': (_robot_name, 'a robot namespace'),
+    'merged_map_frame': (_frame_id, 'a frame id'),
     'estimation_rate': _RATE,
     'merge_rate': _RATE,
     'discovery_rate': _RATE,
@@ -179,6 +260,7 @@ RULES: Dict[str, Tuple[Callable[[Any], Any], str]] = {
     'pose_graph': (_bool, 'true or false'),
     'ambiguity_margin': _UNIT,
     'max_position_sigma': _float(0.0, None, lo_open=True),
+    'stale_map_timeout': _float(0.0),
     'initial_poses': (_poses, 'a mapping robot: [x, y, yaw]'),
     'initial_pose_tolerance': (_tolerance, '[metres, radians]'),
     'trust_initial_poses': (_bool, 'true or false'),
@@ -212,6 +294,19 @@ DEPRECATED: Dict[str, Tuple[str, str]] = {
 LIBRARY_PARAMS: Dict[str, str] = {
     'diagnostic_period': "diagnostic_updater's: seconds between /diagnostics messages (default 1)",
 }
+#: ... their rules and defaults, checked as ours are (the node hands the library the value checked)
+LIBRARY_RULES: Dict[str, Tuple[Tuple[Callable[[Any], Any], str], Any]] = {
+    'diagnostic_period': (_RATE, 1.0),
+}
+
+
+def check_library_param(name: str, value: Any) -> Tuple[Any, Optional[str]]:
+    """(the value to use, the error to log or None) for a library's parameter (LIBRARY_RULES)."""
+    (conv, _), default = LIBRARY_RULES[name]
+    try:
+        return conv(value), None
+    except _Invalid as e:
+        return default, '~%s = %r is invalid: must be %s; using the default %r' % (name, value, e, default)
 
 #: m-explore's parameters read but without an equivalent here: why
 MEXPLORE_IGNORED: Dict[str, str] = {
@@ -228,6 +323,8 @@ class Resolved:
     errors: List[str] = field(default_factory=list)
     warnings: List[str] = field(default_factory=list)
     notes: List[str] = field(default_factory=list)   # aliases read: worth an info line
+    library: Dict[str, Any] = field(default_factory=dict)   # LIBRARY_RULES' parameters, checked
+    library_given: Dict[str, Any] = field(default_factory=dict)   # ... and as given (when given)
 
 
 def resolve_params(given: Mapping[str, Any]) -> Resolved:
@@ -283,6 +380,28 @@ def resolve_params(given: Mapping[str, Any]) -> Resolved:
                       '%g and %g' % (free, occ, default.free_thresh, default.occupied_thresh))
         kw.pop('free_thresh', None)
         kw.pop('occupied_thresh', None)
+    ref = kw.get('reference_robot', default.reference_robot)
+    robots = kw.get('robots', default.robots)
+    pattern = kw.get('robot_namespace_pattern', default.robot_namespace_pattern)
+    if ref and robots and ref not in robots:
+        errors.append('~reference_robot %r is not one of ~robots (%s): its map would never be read and '
+                      'nothing merged; using the default %r (the first of ~robots by name, %s)'
+                      % (ref, ' '.join(robots), default.reference_robot, sorted(robots)[0]))
+        kw.pop('reference_robot', None)
+    elif ref and not robots and not fnmatch.fnmatchcase(ref, pattern):
+        errors.append('~reference_robot %r does not match ~robot_namespace_pattern %r: it would never be '
+                      'discovered and nothing merged; using the default %r (chosen by name among the '
+                      'robots discovered)' % (ref, pattern, default.reference_robot))
+        kw.pop('reference_robot', None)
+    library: Dict[str, Any] = {}
+    library_given: Dict[str, Any] = {}
+    for name, (_, lib_default) in LIBRARY_RULES.items():
+        library[name] = lib_default
+        if name in given:
+            library_given[name] = given[name]
+            library[name], error = check_library_param(name, given[name])
+            if error:
+                errors.append(error)
     known = set(names) | set(aliases) | set(MEXPLORE_IGNORED) | set(LIBRARY_PARAMS)
     for name in sorted(given):
         if name in known:
@@ -290,4 +409,26 @@ def resolve_params(given: Mapping[str, Any]) -> Resolved:
         close = difflib.get_close_matches(name, sorted(known), n=1, cutoff=0.6)
         warnings.append('unknown parameter ~%s ignored%s' % (
             name, ': did you mean ~%s?' % close[0] if close else ' (the README lists the parameters)'))
-    return Resolved(MergeConfig(**kw), errors, warnings, notes)
+    return Resolved(MergeConfig(**kw), errors, warnings, notes, library, library_given)
+
+
+def reference_message(choice: ReferenceChoice) -> str:
+    """The node's info line saying which robot is the reference (the merged frame is its map
+    frame), why, and how to choose it (``~reference_robot``); '' before there is one."""
+    ref = choice.robot
+    if not ref:
+        return ''
+    if choice.why == REF_PARAMETER:
+        return 'reference robot %s (set by ~reference_robot): the merged frame is its map frame' % ref
+    if choice.why == REF_PROPOSED:
+        return ('reference robot %s (the first of ~robots by name; set ~reference_robot to choose '
+                'another): the merged frame is its map frame' % ref)
+    others = ', '.join(choice.with_maps)
+    if not choice.fixed:
+        return ('reference robot %s for now (the first by name among the robots with a map: %s): the '
+                'merged frame is its map frame; a robot of a lower name whose map comes before another '
+                'robot is merged with %s takes it over; set ~reference_robot to fix it' % (ref, others, ref))
+    return ('reference robot %s, fixed now that another robot is merged with it (it was the first by name '
+            'among the robots with a map: %s; a robot whose map comes later does not take the merged '
+            'frame over): set ~reference_robot: %s for the same merged frame in every run'
+            % (ref, others, ref))

@@ -314,3 +314,83 @@ def test_prior_set_and_cleared_while_running(intel):
     pl = m.placements()['b']
     d, a = pose_error(pl.T, T_true)
     assert pl.via == 'a' and d < 0.1 and a < 1.0, (pl.via, d, a)
+
+
+# -- which robot is the reference (the merged frame is its map frame) when none is given
+
+def test_decide_reference_follows_the_first_name_with_a_map_until_another_robot_is_merged():
+    from multi_map_merge.core.merger import decide_reference
+    assert decide_reference('', False, [], []) == ('', False)
+    assert decide_reference('', False, ['tb3_1'], []) == ('tb3_1', False)
+    # a lower name's map comes while the merge is tb3_1's alone: it takes the reference over
+    assert decide_reference('tb3_1', False, ['tb3_1', 'tb3_0'], ['tb3_1']) == ('tb3_0', False)
+    assert decide_reference('tb3_1', False, ['tb3_1', 'tb3_2'], ['tb3_1']) == ('tb3_1', False)
+    # another robot merged with the reference: fixed, whatever map comes after
+    assert decide_reference('tb3_1', False, ['tb3_1', 'tb3_2'], ['tb3_1', 'tb3_2']) == ('tb3_1', True)
+    assert decide_reference('tb3_1', True, ['tb3_0', 'tb3_1', 'tb3_2'], ['tb3_1']) == ('tb3_1', True)
+    # given (or fixed before): stays, even before its map
+    assert decide_reference('tb3_5', True, ['tb3_0'], []) == ('tb3_5', True)
+
+
+@pytest.mark.parametrize('order', ['abc', 'cba', 'bca'])
+def test_the_reference_does_not_depend_on_which_map_came_first(ps, order):
+    """Maps fed in any order before a cycle: the reference is a (first by name), fixed once b
+    and c are merged with it, and b, c are placed in a's frame."""
+    from multi_map_merge.core.merger import REF_FIRST_BY_NAME
+    m = MapMerger(MergeConfig())
+    for n in order:
+        m.update_map(n, ps['abc'.index(n)][0])
+        assert m.reference_choice().fixed is False
+    assert m.reference == 'a'
+    m.estimate()
+    choice = m.reference_choice()
+    assert (choice.robot, choice.fixed, choice.why, choice.with_maps) == ('a', True, REF_FIRST_BY_NAME,
+                                                                          ('a', 'b', 'c'))
+    assert_placed_right(m, ps)
+
+
+def test_a_lower_name_takes_the_reference_over_only_while_nothing_is_merged(ps):
+    m = MapMerger(MergeConfig())
+    m.update_map('c', ps[2][0])
+    m.estimate()                                      # c alone: the merge is c's map
+    assert (m.reference, set(m.placements())) == ('c', {'c'})
+    m.update_map('b', ps[1][0])                       # before the next cycle: b is the reference now,
+    assert m.reference == 'b' and not m.reference_choice().fixed
+    assert set(m.placements()) == {'b'}               # alone, at identity (c's placement was in c's frame)
+    assert np.allclose(m.placements()['b'].T, np.eye(3))
+    m.estimate()                                      # b and c merge: fixed at b
+    assert m.reference_choice().fixed and set(m.placements()) == {'b', 'c'}
+    c_in_b = m.placements()['c'].T.copy()
+    m.update_map('a', ps[0][0])                       # a comes after the first merge: b stays
+    assert m.reference == 'b' and m.reference_choice().fixed
+    m.estimate()
+    P = m.placements()
+    assert set(P) == {'a', 'b', 'c'} and np.allclose(P['b'].T, np.eye(3))
+    assert np.allclose(P['c'].T, c_in_b)             # no jump of what was published
+    d, a = pose_error(P['a'].T, truth(ps[1][1], ps[0][1]))
+    assert d < 0.1 and a < 1.0, (d, a)
+
+
+def test_a_cycle_begun_under_a_former_reference_places_nothing(ps):
+    """A lower name's map arrives while a cycle runs under the former reference: that cycle's
+    placements (in the former reference's frame) are dropped."""
+    m = MapMerger(MergeConfig())
+    m.update_map('b', ps[1][0])
+    m.update_map('c', ps[2][0])
+    ref, maps = m._snapshot()
+    assert ref == 'b'
+    m.update_map('a', ps[0][0])                       # meanwhile
+    assert m._place(maps, ref) == [] and set(m.placements()) == {'a'}
+    assert not m.reference_choice().fixed
+
+
+def test_a_given_or_proposed_reference_is_fixed_from_the_start(ps):
+    from multi_map_merge.core.merger import REF_PARAMETER, REF_PROPOSED
+    m = MapMerger(MergeConfig(reference_robot='c'))
+    m.update_map('a', ps[0][0])
+    assert (m.reference, m.reference_choice().fixed, m.reference_choice().why) == ('c', True, REF_PARAMETER)
+    m = MapMerger(MergeConfig())
+    assert m.propose_reference('b') == 'b'
+    m.update_map('a', ps[0][0])
+    assert (m.reference, m.reference_choice().why) == ('b', REF_PROPOSED)
+    assert m.propose_reference('a') == 'b'            # fixed: a later proposal changes nothing

@@ -199,3 +199,65 @@ def test_sigma_on_diagnostics_is_the_grids_covariance(halves_merged):
     kv = values(robot_diagnostic('b', m.status()['b'], False, NOW, max_position_sigma=m.config.max_position_sigma))
     assert abs(float(kv['sigma_position']) - d['sigma_position']) <= 5e-5
     assert kv['weak'] == str(d['weak']).lower()
+
+
+def with_map_at(st, received):
+    st.map_received = received
+    return st
+
+
+def test_a_robot_whose_maps_stopped_is_warn_naming_the_age_and_stays_merged():
+    """The publisher is still there (not vanished) but no map came for longer than
+    stale_map_timeout: WARN 'no map for 42 s', map_age_s the map's age (age_s stays the
+    placement's), still merged."""
+    st = with_map_at(merged(), NOW - 42.0)
+    s = robot_diagnostic('tb3_1', st, False, NOW, stale_map_timeout=30.0)
+    kv = values(s)
+    assert s.level == DiagnosticStatus.WARN
+    assert s.message == 'merged via tb3_0; no map for 42 s (over ~stale_map_timeout, 30 s; its last map is kept)'
+    assert (kv['map_age_s'], kv['age_s'], kv['merged'], kv['publisher']) == ('42.0', '12.0', 'true', 'ok')
+    # a fresh map: OK again, its age shown
+    s = robot_diagnostic('tb3_1', with_map_at(merged(), NOW - 2.5), False, NOW, stale_map_timeout=30.0)
+    assert (s.level, s.message, values(s)['map_age_s']) == (DiagnosticStatus.OK, 'merged via tb3_0', '2.5')
+    # 0 = off; the reference too
+    assert robot_diagnostic('tb3_1', with_map_at(merged(), NOW - 420.0), False, NOW).level == DiagnosticStatus.OK
+    s = robot_diagnostic('tb3_0', with_map_at(ref(), NOW - 31.0), False, NOW, stale_map_timeout=30.0)
+    assert s.level == DiagnosticStatus.WARN and s.message.startswith('reference map; no map for 31 s')
+    # a robot whose publisher went away is said to have vanished, not stale as well
+    s = robot_diagnostic('tb3_1', with_map_at(merged(), NOW - 42.0), True, NOW, stale_map_timeout=30.0)
+    assert 'vanished' in s.message and 'no map for' not in s.message
+
+
+def test_node_warns_naming_robots_whose_maps_stopped_and_clears_when_they_come_again():
+    st = {'tb3_0': with_map_at(ref(), NOW - 1.0), 'tb3_1': with_map_at(merged(), NOW - 42.0)}
+    gone = {'tb3_0': False, 'tb3_1': False}
+    s = node_diagnostic(st, gone, 0.1, None, 2, 2, now=NOW, stale_map_timeout=30.0)
+    assert (s.level, s.message) == (DiagnosticStatus.WARN, 'stale: tb3_1 (no map for 42 s)')
+    assert values(s)['stale'] == 'tb3_1' and values(s)['merged'] == '2'
+    st['tb3_1'] = with_map_at(merged(), NOW - 0.5)
+    s = node_diagnostic(st, gone, 0.1, None, 2, 2, now=NOW, stale_map_timeout=30.0)
+    assert s.level == DiagnosticStatus.OK and values(s)['stale'] == '-'
+    # the vanished are not stale too; no clock given (or 0): no stale check
+    st['tb3_1'] = with_map_at(merged(), NOW - 42.0)
+    s = node_diagnostic(st, {'tb3_1': True}, 0.1, None, 2, 2, now=NOW, stale_map_timeout=30.0)
+    assert s.message == 'vanished: tb3_1' and values(s)['stale'] == '-'
+    assert node_diagnostic(st, gone, 0.1, None, 2, 2).level == DiagnosticStatus.OK
+    assert node_diagnostic(st, gone, 0.1, None, 2, 2, now=NOW, stale_map_timeout=0.0).level == DiagnosticStatus.OK
+
+
+def test_the_status_carries_when_the_last_map_arrived():
+    """MapMerger.status(): map_received is the arrival of the robot's last map, republished
+    unchanged included (a robot standing still under gmapping sends the same grid)."""
+    import time
+
+    from multi_map_merge.core.grid import Grid
+    from multi_map_merge.core.merger import MapMerger
+    m = MapMerger()
+    g = Grid(np.zeros((40, 40), np.int8), 0.05, (0.0, 0.0, 0.0), 'a/map')
+    t0 = time.time()
+    m.update_map('a', g)
+    first = m.status()['a'].map_received
+    assert t0 <= first <= time.time()
+    time.sleep(0.02)
+    m.update_map('a', Grid(g.data.copy(), 0.05, (0.0, 0.0, 0.0), 'a/map'))
+    assert m.status()['a'].map_received > first

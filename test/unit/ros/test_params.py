@@ -10,7 +10,15 @@ import yaml
 from conftest import REPO
 
 from multi_map_merge.core.config import MergeConfig
-from multi_map_merge.ros.params import LIBRARY_PARAMS, MEXPLORE_ALIASES, MEXPLORE_IGNORED, RULES, resolve_params
+from multi_map_merge.ros.params import (
+    LIBRARY_PARAMS,
+    LIBRARY_RULES,
+    MEXPLORE_ALIASES,
+    MEXPLORE_IGNORED,
+    RULES,
+    check_library_param,
+    resolve_params,
+)
 
 
 def shipped_yaml():
@@ -69,8 +77,8 @@ def test_good_values_of_every_kind_are_taken_and_converted():
     ('akaze_threshold', 0, '> 0'),
     ('refine', 'yes', 'true or false'),
     ('refine', 2, 'true or false'),
-    ('map_topic', '', 'non-empty string'),
-    ('merged_map_frame', {'a': 1}, 'non-empty string'),
+    ('map_topic', '', 'one topic name'),
+    ('merged_map_frame', {'a': 1}, 'a frame id'),
     ('robots', [1, 2], 'list of robot namespaces'),
     ('initial_poses', {'tb3_0': [0, 0]}, 'robot: [x, y, yaw]'),
     ('initial_poses', {'tb3_0': [0, 'x', 0]}, 'robot: [x, y, yaw]'),
@@ -251,3 +259,104 @@ def test_a_former_name_wins_over_our_name_at_its_default_as_config_map_merge_yam
     # our name set to anything else wins, with a warning
     res = resolve_params({'transforms_file': '/tmp/old.yaml', 'state_file': '/tmp/new.yaml'})
     assert res.config.state_file == '/tmp/new.yaml' and len(res.warnings) == 1
+
+
+# -- every parameter checked: no value the parameter server can hold crashes the node or is taken
+#    silently when the node cannot work with it
+
+@pytest.mark.parametrize('name', sorted(set(RULES) | set(LIBRARY_RULES)))
+@pytest.mark.parametrize('value', [None, {'x': {}}, [[1]], '', '  '])
+def test_every_parameter_refuses_values_of_no_use_with_one_error_naming_it(name, value):
+    """Each parameter resolve_params reads, given a value of the wrong type (None, as an empty
+    YAML entry gives it; a mapping; a nested list) or an empty string where it needs one: one
+    error naming it, and the default. Strings that may be empty (''= none/default) are taken."""
+    may_be_empty = {'map_updates_topic', 'reference_robot', 'state_file', 'robots'}
+    res = resolve_params({name: value})
+    if isinstance(value, str) and name in may_be_empty:
+        assert not res.errors, res.errors
+        return
+    assert len(res.errors) == 1 and '~%s ' % name in res.errors[0], (name, value, res.errors)
+    assert 'using the default' in res.errors[0]
+    if name in LIBRARY_RULES:
+        assert res.library[name] == LIBRARY_RULES[name][1]
+    else:
+        assert getattr(res.config, name) == getattr(MergeConfig(), name)
+
+
+@pytest.mark.parametrize('value', ['abc', 0, -1.0, float('nan'), [1.0], True])
+def test_a_bad_diagnostic_period_is_an_error_and_the_updater_gets_the_default(value):
+    """diagnostic_updater reads ~diagnostic_period itself: 'abc' made it raise at every update
+    (rospy.Duration('abc')), and /diagnostics went silent. Now it is checked like ours."""
+    res = resolve_params({'diagnostic_period': value})
+    assert res.library['diagnostic_period'] == 1.0
+    assert len(res.errors) == 1 and '~diagnostic_period' in res.errors[0] and '> 0' in res.errors[0]
+    assert check_library_param('diagnostic_period', value) == (1.0, res.errors[0])
+    assert res.library_given == {'diagnostic_period': value}
+
+
+def test_a_good_diagnostic_period_is_taken():
+    res = resolve_params({'diagnostic_period': '2.5'})
+    assert res.library == {'diagnostic_period': 2.5} and not res.errors
+    assert resolve_params({}).library == {'diagnostic_period': 1.0}
+
+
+@pytest.mark.parametrize('name,value', [
+    ('map_topic', 'a/b'), ('map_topic', '/map'), ('map_topic', 'my map'), ('map_topic', '1map'),
+    ('map_updates_topic', '/tb3_0/map_updates'), ('map_updates_topic', 'map updates'),
+    ('merged_map_topic', 'merged map'), ('merged_map_topic', '~map'), ('merged_map_topic', 'a//b'),
+    ('merged_map_frame', '/map'), ('merged_map_frame', 'my map'),
+    ('robot_namespace_pattern', 'robots/tb3_*'), ('robot_namespace_pattern', 'tb3 *'),
+    ('robots', ['tb3_0', 'tb3 1']), ('robots', ['0tb3']), ('robots', {'tb3_0': 1}),
+    ('reference_robot', 'tb3 0'), ('reference_robot', 5),
+    ('stale_map_timeout', -1), ('stale_map_timeout', 'long'),
+])
+def test_names_the_node_cannot_use_are_errors(name, value):
+    """~map_topic a/b passed before, but discovery needs exactly /<robot>/<map_topic>: no robot
+    was ever found. Each name is checked for what the node does with it."""
+    res = resolve_params({name: value})
+    assert len(res.errors) == 1 and '~%s ' % name in res.errors[0], res.errors
+    assert getattr(res.config, name) == getattr(MergeConfig(), name)
+
+
+def test_names_the_node_can_use_are_taken():
+    res = resolve_params({'map_topic': ' gmap ', 'map_updates_topic': 'slam/map_updates',
+                          'merged_map_topic': '/team/map', 'merged_map_frame': 'world',
+                          'robot_namespace_pattern': '/robot_?/', 'robots': '/tb3_0 tb3_1 tb3_0',
+                          'reference_robot': '/tb3_1', 'stale_map_timeout': 0})
+    assert not res.errors and not res.warnings, (res.errors, res.warnings)
+    c = res.config
+    assert (c.map_topic, c.map_updates_topic, c.merged_map_topic) == ('gmap', 'slam/map_updates', '/team/map')
+    assert (c.merged_map_frame, c.robot_namespace_pattern) == ('world', 'robot_?')
+    assert c.robots == ['tb3_0', 'tb3_1'] and c.reference_robot == 'tb3_1'   # (as the maps are keyed)
+    assert c.stale_map_timeout == 0.0   # 0 = off
+
+
+def test_a_reference_robot_not_in_robots_is_an_error_and_the_first_of_robots_is_used():
+    res = resolve_params({'robots': ['tb3_0', 'tb3_1'], 'reference_robot': 'tb3_2'})
+    assert res.config.reference_robot == '' and res.config.robots == ['tb3_0', 'tb3_1']
+    assert len(res.errors) == 1
+    assert "~reference_robot 'tb3_2' is not one of ~robots (tb3_0 tb3_1)" in res.errors[0]
+    assert 'first of ~robots by name, tb3_0' in res.errors[0]
+
+
+def test_a_reference_robot_discovery_would_never_find_is_an_error():
+    res = resolve_params({'robot_namespace_pattern': 'tb3_*', 'reference_robot': 'robot1'})
+    assert res.config.reference_robot == '' and len(res.errors) == 1
+    assert "~reference_robot 'robot1' does not match ~robot_namespace_pattern 'tb3_*'" in res.errors[0]
+    assert resolve_params({'robot_namespace_pattern': 'robot*', 'reference_robot': 'robot1'}).errors == []
+
+
+def test_the_reference_line_says_which_robot_why_and_how_to_choose_it():
+    from multi_map_merge.core.merger import REF_FIRST_BY_NAME, REF_PARAMETER, REF_PROPOSED, ReferenceChoice
+    from multi_map_merge.ros.params import reference_message
+    assert reference_message(ReferenceChoice('', False, REF_FIRST_BY_NAME)) == ''
+    assert reference_message(ReferenceChoice('tb3_2', True, REF_PARAMETER)) == \
+        'reference robot tb3_2 (set by ~reference_robot): the merged frame is its map frame'
+    line = reference_message(ReferenceChoice('tb3_0', True, REF_PROPOSED))
+    assert line.startswith('reference robot tb3_0 (the first of ~robots by name; set ~reference_robot')
+    line = reference_message(ReferenceChoice('tb3_1', False, REF_FIRST_BY_NAME, ('tb3_1', 'tb3_2')))
+    assert line.startswith('reference robot tb3_1 for now (the first by name among the robots with a map: '
+                           'tb3_1, tb3_2)') and 'set ~reference_robot to fix it' in line
+    line = reference_message(ReferenceChoice('tb3_1', True, REF_FIRST_BY_NAME, ('tb3_0', 'tb3_1', 'tb3_2')))
+    assert line.startswith('reference robot tb3_1, fixed now that another robot is merged with it')
+    assert line.endswith('set ~reference_robot: tb3_1 for the same merged frame in every run')
