@@ -305,6 +305,10 @@ def start_pool(workers: int = 0) -> None:
     import multiprocessing
     import threading
     from concurrent.futures import ProcessPoolExecutor
+    # This process places the robots (the pose graph's and the covariances' small solves, a
+    # few 3N x 3N systems per cycle): OpenBLAS's LAPACK runs even a 9 x 9 solve on its threads,
+    # which take milliseconds to wake while the workers keep the cores busy, microseconds on one
+    _one_blas_thread()
     n = workers or os.cpu_count() or 1
     if _POOL is not None:
         # waiting for the old workers (idle: a pool is replaced only when the configured size

@@ -210,3 +210,25 @@ def test_cost_table_in_16_bits_is_the_truncated_squared_distance():
     assert want.max() == covariance.TRUNCATE ** 2   # (the truncation is exercised)
     # the padding costs the truncation
     assert field.cost[0, 0] == field.big and field.big / covariance.COST_SCALE == pytest.approx(9.0, abs=1e-3)
+
+
+def test_the_process_starting_the_pool_runs_blas_on_one_thread():
+    """The node's own process (it places the robots: the pose graph's small solves) also runs
+    OpenBLAS on one thread once it starts its worker pool."""
+    code = ('import ctypes, sys\n'
+            'sys.path.insert(0, %r)\n'
+            'import numpy\n'
+            'from multi_map_merge.core.workers import start_pool\n'
+            'try:\n'
+            '    lib = ctypes.CDLL("libblas.so.3")\n'
+            '    get = lib.openblas_get_num_threads\n'
+            '    lib.openblas_set_num_threads(2)\n'
+            'except (OSError, AttributeError):\n'
+            '    print("no openblas"); sys.exit(0)\n'
+            'start_pool(1)\n'
+            'print(get())\n' % SRC)
+    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    if out.stdout.strip() == 'no openblas':
+        pytest.skip('numpy\'s BLAS here is not OpenBLAS')
+    assert out.stdout.strip() == '1'
