@@ -115,13 +115,16 @@ def robot_diagnostic(robot: str, st: RobotStatus, gone: bool, now: float,
 def node_diagnostic(status: Dict[str, RobotStatus], gone: Dict[str, bool], est_seconds: float,
                     est_error: Optional[BaseException], robots: int, merged: int,
                     out: Optional[DiagnosticStatus] = None, now: Optional[float] = None,
-                    stale_map_timeout: float = 0.0) -> DiagnosticStatus:
+                    stale_map_timeout: float = 0.0,
+                    no_map_yet: Optional[Dict[str, float]] = None) -> DiagnosticStatus:
     """The node's own status. ERROR when the last estimation cycle raised ``est_error`` (its
     type and text in the message); else WARN naming the robots that vanished (no publisher of
     their map), whose maps stopped (none for over ``stale_map_timeout`` seconds at wall time
     ``now``, publisher still there), are not merged, are merged but weakly pinned, or whose last
-    input was refused; else OK. Values: the last cycle's seconds (``last_estimation_s``), how
-    many robots and how many merged, which are not merged, vanished, stale or weakly pinned, the
+    input was refused, or robots of ``~robots`` that have sent no map at all (``no_map_yet``:
+    robot -> seconds waited, given by the caller once that is over ``stale_map_timeout``);
+    else OK. Values: the last cycle's seconds (``last_estimation_s``), how many robots and how
+    many merged, which are not merged, vanished, stale, without a map yet or weakly pinned, the
     last error. The hardware id is left to the caller (the updater sets the node's)."""
     s = out if out is not None else DiagnosticStatus()
     stale = stale_maps(status, gone, now, stale_map_timeout) if now is not None else {}
@@ -129,10 +132,11 @@ def node_diagnostic(status: Dict[str, RobotStatus], gone: Dict[str, bool], est_s
     unmerged = sorted(r for r, st in status.items() if not st.merged)
     weak = sorted(r for r, st in status.items() if st.merged and st.placement is not None and st.placement.weak)
     refused = sorted(r for r, st in status.items() if st.error)
+    waiting = {r: t for r, t in (no_map_yet or {}).items() if r not in status}
     if est_error is not None:
         s.level = DiagnosticStatus.ERROR
         s.message = 'estimation failed: %s' % error_text(est_error)
-    elif vanished or stale or unmerged or weak or refused or not status:
+    elif vanished or stale or unmerged or weak or refused or waiting or not status:
         s.level = DiagnosticStatus.WARN
         parts: List[str] = []
         if not status:
@@ -147,6 +151,8 @@ def node_diagnostic(status: Dict[str, RobotStatus], gone: Dict[str, bool], est_s
             parts.append('stale: %s' % ', '.join('%s (no map for %.0f s)' % (r, stale[r]) for r in sorted(stale)))
         if refused:
             parts.append('input ignored: %s' % ', '.join(refused))
+        if waiting:
+            parts.append('no map yet: %s' % ', '.join('%s (waited %.0f s)' % (r, waiting[r]) for r in sorted(waiting)))
         s.message = '; '.join(parts)
     else:
         s.level = DiagnosticStatus.OK
@@ -157,6 +163,7 @@ def node_diagnostic(status: Dict[str, RobotStatus], gone: Dict[str, bool], est_s
                 KeyValue('not_merged', ' '.join(unmerged) or '-'),
                 KeyValue('vanished', ' '.join(vanished) or '-'),
                 KeyValue('stale', ' '.join(sorted(stale)) or '-'),
+                KeyValue('no_map_yet', ' '.join(sorted(waiting)) or '-'),
                 KeyValue('weakly_pinned', ' '.join(weak) or '-'),
                 KeyValue('last_error', error_text(est_error) if est_error is not None else '-')]
     return s

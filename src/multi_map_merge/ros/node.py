@@ -150,6 +150,7 @@ class MergeNode:
             self._saved_version = self.merger.state_version
         self._gone: Dict[str, bool] = {}
         self._stale: set = set()   # robots whose maps stopped (logged once)
+        self._started = time.time()   # (wall seconds: how long a robot of ~robots has been silent)
         self._frame_warned: Dict[str, str] = {}
         self._prior_subs: Dict[str, list] = {}
         self._prior_lock = threading.Lock()
@@ -555,9 +556,14 @@ class MergeNode:
                                 self.cfg.max_position_sigma, self.cfg.stale_map_timeout)
 
     def _node_diagnostic(self, stat):
+        now = time.time()
+        waited = now - self._started
+        # robots of ~robots that never sent a map, once that is as long as a stopped map's
+        silent = {r.strip('/'): waited for r in self.cfg.robots} if (
+            self.cfg.stale_map_timeout > 0 and waited > self.cfg.stale_map_timeout) else {}
         return node_diagnostic(self.merger.status(), self._gone, self._est_seconds, self._est_error,
                                len(self.merger.frames()), len(self.merger.placements()), stat,
-                               time.time(), self.cfg.stale_map_timeout)
+                               now, self.cfg.stale_map_timeout, silent)
 
     def _get_map(self, _req) -> GetMapResponse:
         """The merged map as /map has it now (gmapping's ``dynamic_map``); an error before

@@ -261,3 +261,17 @@ def test_the_status_carries_when_the_last_map_arrived():
     time.sleep(0.02)
     m.update_map('a', Grid(g.data.copy(), 0.05, (0.0, 0.0, 0.0), 'a/map'))
     assert m.status()['a'].map_received > first
+
+
+def test_node_warns_naming_listed_robots_that_never_sent_a_map():
+    """A robot of ~robots whose map never came (its SLAM not running, a wrong namespace) is
+    named on the node's status once the node has waited ~stale_map_timeout; one whose map came
+    is not."""
+    st = {'tb3_0': with_map_at(ref(), NOW - 1.0), 'tb3_1': with_map_at(merged(), NOW - 1.0)}
+    gone = {'tb3_0': False, 'tb3_1': False}
+    s = node_diagnostic(st, gone, 0.1, None, 2, 2, now=NOW, stale_map_timeout=30.0,
+                        no_map_yet={'tb3_1': 45.0, 'tb3_2': 45.0})
+    assert (s.level, s.message) == (DiagnosticStatus.WARN, 'no map yet: tb3_2 (waited 45 s)')
+    assert values(s)['no_map_yet'] == 'tb3_2'
+    s = node_diagnostic(st, gone, 0.1, None, 2, 2, now=NOW, stale_map_timeout=30.0, no_map_yet={})
+    assert s.level == DiagnosticStatus.OK and values(s)['no_map_yet'] == '-'
