@@ -16,6 +16,7 @@ import rospkg
 import rospy
 import tf2_ros
 from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseWithCovarianceStamped
 from nav_msgs.msg import OccupancyGrid
 from rospy.numpy_msg import numpy_msg
 
@@ -23,7 +24,7 @@ from multi_map_merge.core.grid import FREE, OCCUPIED, UNKNOWN, known_bbox
 from multi_map_merge.core.mapio import load_map
 from multi_map_merge.core.transforms import cell_to_metric, pose_distance, se2, xyyaw
 from multi_map_merge.lab.pieces import cut_piece, split_rects
-from multi_map_merge.ros.convert import grid_to_msg, quaternion_yaw, transform_msg
+from multi_map_merge.ros.convert import grid_to_msg, quaternion_yaw, set_yaw, transform_msg
 
 NumpyGrid = numpy_msg(OccupancyGrid)
 MERGER = 'map_merge'   # the merger node's name in the rostests (launch/map_merge.launch)
@@ -294,6 +295,21 @@ def union_mask_of(world, pieces):
                                flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP,
                                borderMode=cv2.BORDER_CONSTANT, borderValue=0)
     return mask
+
+
+def rviz_prior(T, frame):
+    """What rviz's SetInitialPose tool (a robot's prior tool) publishes for a press at T's
+    position dragged towards T's heading in the fixed frame ``frame``: its covariance is the
+    tool's default, 0.5 m and pi/12 rad standard deviations."""
+    msg = PoseWithCovarianceStamped()
+    msg.header.frame_id = frame
+    msg.header.stamp = rospy.Time.now()
+    x, y, yaw = xyyaw(T)
+    msg.pose.pose.position.x, msg.pose.pose.position.y = x, y
+    set_yaw(msg.pose.pose.orientation, yaw)
+    msg.pose.covariance[0] = msg.pose.covariance[7] = 0.5 * 0.5
+    msg.pose.covariance[35] = (math.pi / 12.0) ** 2
+    return msg
 
 
 def fmt_pose(T):

@@ -24,8 +24,6 @@ Skips where ROS has no move_base, turtlebot3_navigation or gmapping."""
 import math
 import os
 import subprocess
-import sys
-import tempfile
 import threading
 import time
 import unittest
@@ -42,7 +40,7 @@ from nav_msgs.srv import GetPlan
 from rosgraph_msgs.msg import Clock
 from rospy.numpy_msg import numpy_msg
 from rostest_helpers import lookup, stop_launch
-from test_tb3_real_launch import lds02_bag
+from test_tb3_real_launch import two_robot_lds02_bag
 from tf2_msgs.msg import TFMessage
 
 from multi_map_merge.core.transforms import apply, cell_to_metric, inverse, xyyaw
@@ -198,14 +196,7 @@ class TestMoveBaseMerged(unittest.TestCase):
         rp = requirements(self)
         pkg = rp.get_path('multi_map_merge')
         params = os.path.join(rp.get_path('turtlebot3_navigation'), 'param')
-        tmp = tempfile.mkdtemp(prefix='mmm_move_base_')
-        raw = os.path.join(tmp, 'house2.bag')
-        r = subprocess.run([sys.executable, os.path.join(pkg, 'scripts', 'make_robot_bags'), '-o', raw,
-                            '--robots', '2', '--seed', '2', '--no-single', '--sensors-only'],
-                           capture_output=True, text=True)
-        self.assertEqual(r.returncode, 0, r.stderr)
-        bag = os.path.join(tmp, 'robots.bag')
-        self.assertGreater(lds02_bag(raw, bag), 100)
+        tmp, bag = two_robot_lds02_bag(self, pkg, 'mmm_move_base_')
         init_node('test_move_base_merged')
         buf = tf2_ros.Buffer(rospy.Duration(60.0))
         tf2_ros.TransformListener(buf)

@@ -29,13 +29,12 @@ import tf2_ros
 import yaml
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from rosgraph_msgs.msg import Log
-from rostest_helpers import Listener, RobotPlayer, fmt_pose, lookup, shared_data, wait_until
+from rostest_helpers import Listener, RobotPlayer, fmt_pose, lookup, rviz_prior, shared_data, wait_until
 from std_msgs.msg import Empty
 
 from multi_map_merge.core.mapio import load_map
-from multi_map_merge.core.transforms import inverse, pose_distance, se2, xyyaw
+from multi_map_merge.core.transforms import inverse, pose_distance, se2
 from multi_map_merge.lab.pieces import halves
-from multi_map_merge.ros.convert import set_yaw
 
 PKG = 'multi_map_merge'
 ROBOTS = ['tb3_0', 'tb3_1']
@@ -51,21 +50,6 @@ def rviz_prior_tool(robot):
     topics = [t['Topic'] for t in vm['Tools'] if t.get('Class') == 'rviz/SetInitialPose'
               and t.get('Topic', '').startswith('/%s/' % robot)]
     return vm['Global Options']['Fixed Frame'], topics[0]
-
-
-def rviz_click(T, frame):
-    """What rviz's SetInitialPose tool publishes for a press at T's position dragged towards
-    T's heading in the fixed frame ``frame`` (its covariance: 0.5 m, pi/12 rad standard
-    deviations)."""
-    msg = PoseWithCovarianceStamped()
-    msg.header.frame_id = frame
-    msg.header.stamp = rospy.Time.now()
-    x, y, yaw = xyyaw(T)
-    msg.pose.pose.position.x, msg.pose.pose.position.y = x, y
-    set_yaw(msg.pose.pose.orientation, yaw)
-    msg.pose.covariance[0] = msg.pose.covariance[7] = 0.5 * 0.5
-    msg.pose.covariance[35] = (math.pi / 12.0) ** 2
-    return msg
 
 
 class TestPriorClick(unittest.TestCase):
@@ -115,7 +99,7 @@ class TestPriorClick(unittest.TestCase):
         # (b) the click, in rviz's fixed frame
         W = self.T_true @ CLICK
         self.assertTrue(wait_until(lambda: prior_pub.get_num_connections() > 0, 10.0))
-        prior_pub.publish(rviz_click(W, frame))
+        prior_pub.publish(rviz_prior(W, frame))
         t0 = time.time()
 
         # (c) the true link found near the click

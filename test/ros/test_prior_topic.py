@@ -24,7 +24,7 @@ import rostest
 import tf2_ros
 from geometry_msgs.msg import PoseWithCovarianceStamped, TransformStamped
 from rosgraph_msgs.msg import Log
-from rostest_helpers import RobotPlayer, data_file, fmt_pose, lookup, make_pieces, wait_until
+from rostest_helpers import RobotPlayer, data_file, fmt_pose, lookup, make_pieces, rviz_prior, wait_until
 from sensor_msgs.msg import LaserScan
 from std_msgs.msg import Empty
 
@@ -89,14 +89,7 @@ class TestPriorTopic(unittest.TestCase):
         return near
 
     def publish_prior(self, T, frame):
-        msg = PoseWithCovarianceStamped()
-        msg.header.frame_id = frame
-        msg.header.stamp = rospy.Time.now()
-        x, y, yaw = xyyaw(T)
-        msg.pose.pose.position.x, msg.pose.pose.position.y = x, y
-        set_yaw(msg.pose.pose.orientation, yaw)
-        msg.pose.covariance[0] = msg.pose.covariance[7] = 0.25     # rviz's defaults
-        msg.pose.covariance[35] = 0.06853891945200942
+        msg = rviz_prior(T, frame)
         self.assertTrue(wait_until(lambda: self.prior_pub.get_num_connections() > 0, 10.0),
                         'the node does not subscribe to /tb3_1/map_merge/prior')
         self.prior_pub.publish(msg)

@@ -65,6 +65,20 @@ def first_merges(buf, robots, t0, out, stop):
         stop.wait(0.2)
 
 
+def two_robot_lds02_bag(test, pkg, prefix):
+    """(a new temporary directory, the bag in it): make_robot_bags' two robots of the house
+    (seed 2, sensors only), their scans made LDS-02's and stamped base_scan (:func:`lds02_bag`)."""
+    tmp = tempfile.mkdtemp(prefix=prefix)
+    raw = os.path.join(tmp, 'house2.bag')
+    r = subprocess.run([sys.executable, os.path.join(pkg, 'scripts', 'make_robot_bags'), '-o', raw,
+                        '--robots', '2', '--seed', '2', '--no-single', '--sensors-only'],
+                       capture_output=True, text=True)
+    test.assertEqual(r.returncode, 0, r.stderr)
+    bag = os.path.join(tmp, 'robots.bag')
+    test.assertGreater(lds02_bag(raw, bag), 100)
+    return tmp, bag
+
+
 def run_tb3_launch(test, launch_args=(), launch_log=None, before_stop=None, env=None):
     """make_robot_bags' two robots (LDS-02 scans stamped base_scan) played through
     ``turtlebot3_multi_slam.launch robot_count:=2 rviz:=false`` plus ``launch_args``, with real
@@ -80,14 +94,7 @@ def run_tb3_launch(test, launch_args=(), launch_log=None, before_stop=None, env=
         test.skipTest('no gmapping: ROS has no package gmapping (Ubuntu: ros-noetic-gmapping; '
                       'Debian: make gmapping builds it from ../shared/gmapping)')
     pkg = rp.get_path('multi_map_merge')
-    tmp = tempfile.mkdtemp(prefix='mmm_tb3_')
-    raw = os.path.join(tmp, 'house2.bag')
-    r = subprocess.run([sys.executable, os.path.join(pkg, 'scripts', 'make_robot_bags'), '-o', raw,
-                        '--robots', '2', '--seed', '2', '--no-single', '--sensors-only'],
-                       capture_output=True, text=True)
-    test.assertEqual(r.returncode, 0, r.stderr)
-    bag = os.path.join(tmp, 'robots.bag')
-    test.assertGreater(lds02_bag(raw, bag), 100)
+    tmp, bag = two_robot_lds02_bag(test, pkg, 'mmm_tb3_')
     init_node('test_tb3_real_launch')
     buf = tf2_ros.Buffer(rospy.Duration(60.0))
     tf2_ros.TransformListener(buf)

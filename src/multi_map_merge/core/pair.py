@@ -197,15 +197,23 @@ def _wall_points(p: PairInput) -> np.ndarray:
     return _derived('points', p, lambda p: occupied_points(p.levels, _known(p)[0]))
 
 
+def prior_link(config: MergeConfig, pa: PairInput, ch: PairInput) -> Optional[np.ndarray]:
+    """The pose of ``ch``'s map frame in ``pa``'s that the configured initial poses give (3x3),
+    None when either robot has none."""
+    priors = config.initial_poses
+    if pa.name not in priors or ch.name not in priors:
+        return None
+    return inverse(se2(*priors[pa.name])) @ se2(*priors[ch.name])
+
+
 def contradicts_prior(config: MergeConfig, pa: PairInput, ch: PairInput, A: np.ndarray) -> str:
     """Why the link contradicts the configured initial poses ('' when it does not, or when
     either robot has none). With priors, of two look-alike placements (a building of
     identical halves) only the one near where the robots started can be accepted."""
-    priors = config.initial_poses
-    if pa.name not in priors or ch.name not in priors:
+    P = prior_link(config, pa, ch)
+    if P is None:
         return ''
     T = image_to_pose(_grid_cells(A, pa, ch), pa.resolution, pa.origin, ch.resolution, ch.origin)
-    P = inverse(se2(*priors[pa.name])) @ se2(*priors[ch.name])
     d, a = pose_distance(T, P)
     tol_d, tol_a = config.initial_pose_tolerance
     if d > tol_d or a > tol_a:
@@ -317,10 +325,9 @@ def _judge(c: MergeConfig, pa: PairInput, ch: PairInput, h: PairResult) -> None:
 def prior_guess(config: MergeConfig, pa: PairInput, ch: PairInput) -> Optional[np.ndarray]:
     """The link the priors give (cells of ``ch``'s crop -> cells of ``pa``'s crop), None when
     either robot has none."""
-    priors = config.initial_poses
-    if pa.name not in priors or ch.name not in priors:
+    P = prior_link(config, pa, ch)
+    if P is None:
         return None
-    P = inverse(se2(*priors[pa.name])) @ se2(*priors[ch.name])
     A = pose_to_image(P, pa.resolution, pa.origin, ch.resolution, ch.origin)
     return se2(-pa.offset[0], -pa.offset[1], 0.0) @ A @ se2(ch.offset[0], ch.offset[1], 0.0)
 

@@ -21,7 +21,9 @@ from .transforms import inverse, se2, wrap_angle, xyyaw
 Link = Tuple[str, str, np.ndarray, float]   # (a, b, Z_ab 3x3, weight)
 
 
-def _residual(Ta: np.ndarray, Tb: np.ndarray, Z: np.ndarray) -> np.ndarray:
+def link_error(Ta: np.ndarray, Tb: np.ndarray, Z: np.ndarray) -> np.ndarray:
+    """A link's error (x, y in metres, yaw in radians) at poses ``Ta``, ``Tb``: what the poses
+    say b sits at, in ``Z``'s frame (zero where they agree with the link)."""
     x, y, yaw = xyyaw(inverse(Z) @ inverse(Ta) @ Tb)
     return np.array([x, y, yaw])
 
@@ -173,12 +175,6 @@ def covariances(poses: Dict[str, np.ndarray], links: List[Link], fixed: str,
     return {names[i]: C[3 * k:3 * k + 3, 3 * k:3 * k + 3] for k, i in enumerate(free)}
 
 
-def link_error(Ta: np.ndarray, Tb: np.ndarray, Z: np.ndarray) -> np.ndarray:
-    """A link's error (x, y in metres, yaw in radians) at poses ``Ta``, ``Tb``: what the poses
-    say b sits at, in ``Z``'s frame (zero where they agree with the link)."""
-    return _residual(Ta, Tb, Z)
-
-
 def mahalanobis2(e: np.ndarray, Z: np.ndarray, C: np.ndarray) -> float:
     """Squared Mahalanobis distance of a link's error ``e`` (:func:`link_error`) under the
     link's covariance ``C`` (of its ``Z``'s x, y, yaw; x, y in the link's parent frame)."""
@@ -192,7 +188,7 @@ def worst_residual(poses: Dict[str, np.ndarray], links: List[Link]) -> Optional[
     worst = None
     for a, b, Z, _ in links:
         if a in poses and b in poses:
-            e = _residual(poses[a], poses[b], Z)
+            e = link_error(poses[a], poses[b], Z)
             cur = (math.hypot(e[0], e[1]), abs(e[2]))
             worst = cur if worst is None else (max(worst[0], cur[0]), max(worst[1], cur[1]))
     return worst

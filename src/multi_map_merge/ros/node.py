@@ -559,7 +559,7 @@ class MergeNode:
         now = time.time()
         waited = now - self._started
         # robots of ~robots that never sent a map, once that is as long as a stopped map's
-        silent = {r.strip('/'): waited for r in self.cfg.robots} if (
+        silent = {r: waited for r in self.cfg.robots} if (
             self.cfg.stale_map_timeout > 0 and waited > self.cfg.stale_map_timeout) else {}
         return node_diagnostic(self.merger.status(), self._gone, self._est_seconds, self._est_error,
                                len(self.merger.frames()), len(self.merger.placements()), stat,

@@ -144,24 +144,31 @@ def test_agreement_with_the_parents_walls_derived_once_is_as_specified(seed):
     assert verify.agreement(parent, child, A @ se2(40, 0, 0.0), 2, boxes, walls)[0] < 0.8
 
 
-def test_workers_run_blas_on_one_thread():
-    """Where numpy's BLAS is OpenBLAS, a worker's initialiser leaves it one thread."""
+def _blas_threads_after(setup: str, call: str) -> str:
+    """OpenBLAS's thread count in a fresh Python after ``setup`` (imports) and ``call`` (with
+    the thread count first set to 2), or 'no openblas' where numpy's BLAS is another."""
     code = ('import ctypes, sys\n'
             'sys.path.insert(0, %r)\n'
             'import numpy\n'
-            'from multi_map_merge.core.workers import _worker_init\n'
+            '%s\n'
             'try:\n'
             '    lib = ctypes.CDLL("libblas.so.3")\n'
             '    get = lib.openblas_get_num_threads\n'
+            '    lib.openblas_set_num_threads(2)\n'
             'except (OSError, AttributeError):\n'
             '    print("no openblas"); sys.exit(0)\n'
-            '_worker_init()\n'
-            'print(get())\n' % SRC)
+            '%s\n'
+            'print(get())\n' % (SRC, setup, call))
     out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, timeout=60)
     assert out.returncode == 0, out.stderr
     if out.stdout.strip() == 'no openblas':
         pytest.skip('numpy\'s BLAS here is not OpenBLAS')
-    assert out.stdout.strip() == '1'
+    return out.stdout.strip()
+
+
+def test_workers_run_blas_on_one_thread():
+    """Where numpy's BLAS is OpenBLAS, a worker's initialiser leaves it one thread."""
+    assert _blas_threads_after('from multi_map_merge.core.workers import _worker_init', '_worker_init()') == '1'
 
 
 @pytest.mark.parametrize('seed', range(3))
@@ -215,20 +222,4 @@ def test_cost_table_in_16_bits_is_the_truncated_squared_distance():
 def test_the_process_starting_the_pool_runs_blas_on_one_thread():
     """The node's own process (it places the robots: the pose graph's small solves) also runs
     OpenBLAS on one thread once it starts its worker pool."""
-    code = ('import ctypes, sys\n'
-            'sys.path.insert(0, %r)\n'
-            'import numpy\n'
-            'from multi_map_merge.core.workers import start_pool\n'
-            'try:\n'
-            '    lib = ctypes.CDLL("libblas.so.3")\n'
-            '    get = lib.openblas_get_num_threads\n'
-            '    lib.openblas_set_num_threads(2)\n'
-            'except (OSError, AttributeError):\n'
-            '    print("no openblas"); sys.exit(0)\n'
-            'start_pool(1)\n'
-            'print(get())\n' % SRC)
-    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, timeout=60)
-    assert out.returncode == 0, out.stderr
-    if out.stdout.strip() == 'no openblas':
-        pytest.skip('numpy\'s BLAS here is not OpenBLAS')
-    assert out.stdout.strip() == '1'
+    assert _blas_threads_after('from multi_map_merge.core.workers import start_pool', 'start_pool(1)') == '1'
