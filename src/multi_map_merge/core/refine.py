@@ -43,21 +43,44 @@ class WallField:
         self.ok = bool(occ.any())
         if not self.ok:
             return
-        src = np.where(occ, 0, 255).astype(np.uint8)
-        dist, labels = cv2.distanceTransformWithLabels(
-            src, cv2.DIST_L2, 5, labelType=cv2.DIST_LABEL_PIXEL)
-        # Labels number the zero (occupied) pixels in raster order, from 1. A cell keeps the
-        # offset to its wall, 2 bytes instead of a 4-byte label (memory per parent map).
-        rr, cc = np.nonzero(occ)
         h, w = occ.shape
-        lab = labels.ravel() - 1
+        # (each array made once and worked on in place: a parent's field is built in every
+        # worker that aligns a pair of it, and a worker's fresh pages cost more than its sums)
+        src = cv2.compare(levels[r0:r1, c0:c1], OCCUPIED, cv2.CMP_NE)   # walls 0, else 255
+        dist = np.empty(h * w + 1, np.float32)
+        dist[-1] = np.inf                       # the entry for points outside the box
+        img, labels = cv2.distanceTransformWithLabels(src, cv2.DIST_L2, 5, dst=dist[:-1].reshape(h, w),
+                                                      labelType=cv2.DIST_LABEL_PIXEL)
+        if not np.shares_memory(img, dist):     # (OpenCV wrote elsewhere after all)
+            dist[:-1] = img.reshape(-1)
+        del src, img
+        # Labels number the zero (occupied) pixels in raster order, from 1. A cell keeps the
+        # offset to its wall, 2 bytes instead of a 4-byte label (memory per parent map): each
+        # cell's wall is looked up once, its (col, row) packed in one integer.
+        rr, cc = np.nonzero(occ)
+        small = max(h, w) < 1 << 15
+        wall = cc.astype(np.int32 if small else np.int64)
+        wall <<= 16 if small else 32
+        wall |= rr
+        lab = labels.reshape(-1).astype(np.intp)
         del labels
+        lab -= 1
+        near = wall.take(lab).reshape(h, w)
+        del lab
         reach = self.OFFSET_REACH
-        flat = np.arange(h * w, dtype=np.int64)
-        self.dx_flat = np.append(np.clip(cc[lab] - flat % w, -reach, reach), 0).astype(np.int8)
-        self.dy_flat = np.append(np.clip(rr[lab] - flat // w, -reach, reach), 0).astype(np.int8)
-        del flat, lab
-        self.dist_flat = np.append(dist.ravel(), np.float32(np.inf))
+        dx = near >> (16 if small else 32)
+        dx -= np.arange(w, dtype=dx.dtype)[None, :]
+        near &= (1 << (16 if small else 32)) - 1
+        near -= np.arange(h, dtype=near.dtype)[:, None]
+        offsets = []
+        for d in (dx, near):
+            np.clip(d, -reach, reach, out=d)
+            out = np.empty(h * w + 1, np.int8)
+            out[-1] = 0
+            out[:-1] = d.reshape(-1)
+            offsets.append(out)
+        self.dx_flat, self.dy_flat = offsets
+        self.dist_flat = dist
         self.shape = occ.shape
 
     def index(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:

@@ -165,8 +165,10 @@ def _task(fn, *args):
 _BUSY = False
 _LAST = 0.0
 IDLE_TRIM_S = 1.0
-# free heap (bytes) a task may leave behind before the worker hands it back at once
-TRIM_FREE_BYTES = 2 << 20
+# free heap (bytes) a task may leave behind before the worker hands it back at once: a task's
+# ordinary leftovers (a parent's wall field, a window's masks: a few MB) stay for the next task
+# of the cycle, which would otherwise fault them in again; the idle trim returns them after it
+TRIM_FREE_BYTES = 16 << 20
 
 
 def _malloc_trim():
@@ -202,10 +204,12 @@ def _trim_functions():
 
 def _trim_if_free(limit: int) -> None:
     """Hand the heap's free memory back to the system when more than ``limit`` bytes of it are
-    free: a task that described a map (AKAZE's scale space: about 170 bytes per pixel) or
-    searched a big pair leaves megabytes free that glibc keeps; the next task would reuse only
-    part of them, and the worker's footprint would be its largest task's for good. Only then:
-    trimming after every task would fault the next task's memory in again (a third slower).
+    free: a task that described a big map (AKAZE's scale space: about 170 bytes per pixel) or
+    searched a big pair leaves tens of megabytes free that glibc keeps; the next task would
+    reuse only part of them, and the worker's footprint would be its largest task's until the
+    cycle ends. Only then: trimming after every task would fault the next task's memory in
+    again, page by page (a fault costs microseconds; a task's fresh memory is thousands of
+    pages).
     Asking is cheap (``mallinfo`` walks the arena's bins, microseconds against a task's
     milliseconds), so it is asked after every task."""
     found = _trim_functions()

@@ -199,6 +199,24 @@ def test_wall_field_offsets_name_the_labelled_nearest_walls(seed):
     assert np.allclose(d, f.dist_flat[:-1][near], atol=0.05 * d.max())
 
 
+@pytest.mark.parametrize('factor', [1, 2, 3, 5])
+def test_maxpool_keeps_the_highest_level_of_each_block(factor):
+    """Pooling for a coarse description: each pixel is the highest level of its factor x factor
+    block of cells (blocks past the grid's edge count as unknown), on odd shapes too."""
+    from multi_map_merge.core.features import _maxpool
+    rng = np.random.default_rng(factor)
+    for shape in [(1, 1), (7, 3), (64, 65), (301, 257)]:
+        levels = rng.integers(0, 3, shape).astype(np.uint8)
+        h, w = shape
+        H, W = -(-h // factor), -(-w // factor)
+        padded = np.zeros((H * factor, W * factor), np.uint8)
+        padded[:h, :w] = levels
+        expect = np.array([[padded[i * factor:(i + 1) * factor, j * factor:(j + 1) * factor].max()
+                            for j in range(W)] for i in range(H)], np.uint8)
+        got = _maxpool(levels, factor)
+        assert got.dtype == np.uint8 and np.array_equal(got, expect)
+
+
 def test_cost_table_in_16_bits_is_the_truncated_squared_distance():
     """covariance.CostField's uint16 table: min(distance, TRUNCATE)^2 to 1/COST_SCALE."""
     import cv2
