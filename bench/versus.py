@@ -1,0 +1,132 @@
+#!/usr/bin/env python3
+"""Cold estimation of this tree against an earlier commit's, both against m-explore, in one run.
+
+    python3 bench/versus.py [--commit a260f5a] [--rows 'house 4' 'intel 4' ...] [--rounds 11]
+
+Did a change cost speed? A ratio to m-explore taken in another run cannot say: this VM's speed
+drifts, and m-explore's own cycle with it (its intel-sized x8 estimation took 3.2 s in one
+make bench, 1.6-1.9 s in others). Here the three run side by side, round after round (as
+bench/duel.py pairs run_bench.py's figures): this tree's cold cycle (bench/ours.py
+--serve-estimate), the other commit's (the same script of that commit, checked out into a
+temporary git worktree: commits from a260f5a on have it), and m-explore's
+estimateTransforms(). Each round asks each side for one cycle, in an order that rotates.
+
+Prints per row m-explore's median, each tree's median and its ratio to m-explore (the median
+of the rounds' ratios, as run_bench.py's table), and this tree over the other commit (the
+median of the rounds' ratios: below 1, this tree is faster). Writes results/versus_<commit>.txt.
+Needs ../shared (the maps and m-explore) and git; not part of `make bench` (about 3 min a row).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+REPO = os.path.dirname(HERE)
+sys.path.insert(0, HERE)
+
+import duel  # noqa: E402
+import inputs  # noqa: E402
+import peer  # noqa: E402
+
+ROWS = ['house 4', 'intel 4', 'aces 4', 'intel-sized x2', 'intel-sized x4', 'intel-sized x8']
+
+
+def row_paths(name, root):
+    """The row's maps written as map files (the maps run_bench.py's row of that name uses)."""
+    from multi_map_merge.core.mapio import save_map
+    for n, _, pieces in inputs.configurations():
+        if n == name:
+            paths = []
+            for k, (grid, _) in enumerate(pieces):
+                paths.append(os.path.join(root, '%s_%d.yaml' % (name.replace(' ', '_'), k)))
+                save_map(grid, paths[-1])
+            return paths
+    raise SystemExit('no row %r (rows: %s)' % (name, ', '.join(n for n, _, _ in inputs.configurations())))
+
+
+def rounds_of(sides, rounds):
+    """{label: [ms per round]}: one cycle of each side per round, the order rotating."""
+    for _, srv in sides:   # the first cycles of a process (its pool warming) are not counted
+        srv.burst()
+        srv.burst()
+    got = {label: [] for label, _ in sides}
+    for r in range(rounds):
+        k = r % len(sides)
+        for label, srv in sides[k:] + sides[:k]:
+            b = srv.burst()
+            got[label].append(b['ms'] if 'ms' in b else b['estimate_ms'])
+    return got
+
+
+def row_line(name, got):
+    """One row of the table from the rounds' figures (:func:`rounds_of`)."""
+    mx = got['mexplore']
+
+    def cell(label):
+        ratio = np.median([x / y for x, y in zip(got[label], mx)])
+        return '%.1f (%.2fx)' % (np.median(got[label]), ratio)
+    change = np.median([x / y for x, y in zip(got['this'], got['other'])])
+    return '%-16s | %12.1f | %-20s | %-20s | %.2fx' % (name, np.median(mx), cell('this'), cell('other'), change)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    ap.add_argument('--commit', default='a260f5a',
+                    help='the commit to compare with (default: where issue 21 was filed)')
+    ap.add_argument('--rows', nargs='*', default=ROWS)
+    ap.add_argument('--rounds', type=int, default=duel.ROUNDS)
+    ap.add_argument('--out', default=os.path.join(HERE, 'results'))
+    a = ap.parse_args()
+    ok, why = peer.available()
+    if not ok:
+        raise SystemExit('versus: %s' % why)
+    head = subprocess.run(['git', '-C', REPO, 'rev-parse', '--short', 'HEAD'], capture_output=True,
+                          text=True, check=True).stdout.strip()
+    dirty = subprocess.run(['git', '-C', REPO, 'status', '--porcelain', '--', 'src', 'bench'],
+                           capture_output=True, text=True, check=True).stdout.strip()
+    this = head + (' + changes' if dirty else '')
+    root = tempfile.mkdtemp(prefix='mmm_versus_')
+    other = os.path.join(root, 'other')
+    subprocess.run(['git', '-C', REPO, 'worktree', 'add', '--detach', other, a.commit],
+                   capture_output=True, text=True, check=True)
+    lines = ['COLD ESTIMATION, side by side in one run (%d rounds a row; medians): this tree (%s) and %s, '
+             'each against m-explore; this / %s = the median of the rounds\' ratios (< 1: this tree is faster)'
+             % (a.rounds, this, a.commit, a.commit),
+             '%-16s | %-12s | %-20s | %-20s | %s' % ('input', 'm-explore ms', 'this ms (ratio)',
+                                                    '%s ms (ratio)' % a.commit, 'this / %s' % a.commit)]
+    print('\n'.join(lines), flush=True)
+    try:
+        for name in a.rows:
+            paths = row_paths(name, root)
+            spec = os.path.join(root, 'spec_%s.json' % name.replace(' ', '_'))
+            with open(spec, 'w') as f:
+                json.dump({'paths': paths}, f)
+            sides = [('this', duel.Server([sys.executable, os.path.join(HERE, 'ours.py'), '--serve-estimate', spec])),
+                     ('other', duel.Server([sys.executable, os.path.join(other, 'bench', 'ours.py'),
+                                            '--serve-estimate', spec])),
+                     ('mexplore', duel.Server(peer.Peer(root).estimate_cmd(paths, 1), peer.ENV))]
+            try:
+                got = rounds_of(sides, a.rounds)
+            finally:
+                for _, srv in sides:
+                    srv.close()
+            lines.append(row_line(name, got))
+            print(lines[-1], flush=True)
+    finally:
+        subprocess.run(['git', '-C', REPO, 'worktree', 'remove', '--force', other], capture_output=True)
+    os.makedirs(a.out, exist_ok=True)
+    path = os.path.join(a.out, 'versus_%s.txt' % a.commit)
+    with open(path, 'w') as f:
+        f.write('\n'.join(lines) + '\n')
+    print('-> %s' % path)
+
+
+if __name__ == '__main__':
+    main()
