@@ -89,7 +89,8 @@ def main():
         raise SystemExit('versus: %s' % why)
     head = subprocess.run(['git', '-C', REPO, 'rev-parse', '--short', 'HEAD'], capture_output=True,
                           text=True, check=True).stdout.strip()
-    dirty = subprocess.run(['git', '-C', REPO, 'status', '--porcelain', '--', 'src', 'bench'],
+    # (changes to the code measured, not to bench/results)
+    dirty = subprocess.run(['git', '-C', REPO, 'status', '--porcelain', '--', 'src', 'bench/*.py'],
                            capture_output=True, text=True, check=True).stdout.strip()
     this = head + (' + changes' if dirty else '')
     root = tempfile.mkdtemp(prefix='mmm_versus_')
