@@ -58,20 +58,20 @@ class WallField:
         # offset to its wall, 2 bytes instead of a 4-byte label (memory per parent map): each
         # cell's wall is looked up once, its (col, row) packed in one integer.
         rr, cc = np.nonzero(occ)
-        small = max(h, w) < 1 << 15
-        wall = cc.astype(np.int32 if small else np.int64)
-        wall <<= 16 if small else 32
+        shift, dtype = (16, np.int32) if max(h, w) < 1 << 15 else (32, np.int64)
+        wall = cc.astype(dtype)
+        wall <<= shift
         wall |= rr
         lab = labels.reshape(-1).astype(np.intp)
         del labels
         lab -= 1
-        near = wall.take(lab).reshape(h, w)
+        near = wall.take(lab).reshape(h, w)            # each cell's nearest wall, packed
         del lab
         reach = self.OFFSET_REACH
-        dx = near >> (16 if small else 32)
-        dx -= np.arange(w, dtype=dx.dtype)[None, :]
-        near &= (1 << (16 if small else 32)) - 1
-        near -= np.arange(h, dtype=near.dtype)[:, None]
+        dx = near >> shift
+        dx -= np.arange(w, dtype=dtype)[None, :]
+        near &= (1 << shift) - 1                       # (near becomes dy)
+        near -= np.arange(h, dtype=dtype)[:, None]
         offsets = []
         for d in (dx, near):
             np.clip(d, -reach, reach, out=d)

@@ -199,6 +199,23 @@ def test_wall_field_offsets_name_the_labelled_nearest_walls(seed):
     assert np.allclose(d, f.dist_flat[:-1][near], atol=0.05 * d.max())
 
 
+def test_wall_field_of_a_box_wider_than_32767_cells():
+    """A box over 2^15 cells a side packs a wall's (col, row) in 64 bits: the offsets still
+    name the nearest walls (a corridor 33000 cells long, walls along both sides)."""
+    from multi_map_merge.core.refine import WallField
+    levels = np.full((12, 33000), FREE, np.uint8)
+    levels[1, :] = OCCUPIED
+    levels[10, ::7] = OCCUPIED
+    f = WallField(levels, margin=0)
+    assert f.shape == (12, 33000)
+    idx = np.arange(12 * 33000)
+    wx, wy = f.walls(idx)
+    assert np.all(levels[wy.astype(int), wx.astype(int)] == OCCUPIED)
+    d = np.hypot(wx - idx % 33000, wy - idx // 33000)
+    assert np.allclose(d, f.dist_flat[:-1], atol=0.05 * max(1.0, d.max()))
+    assert wx[5 * 33000 + 32990] > 32000      # the far end's walls, not wrapped
+
+
 @pytest.mark.parametrize('factor', [1, 2, 3, 5])
 def test_maxpool_keeps_the_highest_level_of_each_block(factor):
     """Pooling for a coarse description: each pixel is the highest level of its factor x factor
