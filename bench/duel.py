@@ -51,24 +51,30 @@ class Server:
                 self.p.kill()
 
 
+def bursts(sides, rounds=ROUNDS):
+    """{label: [burst per round]} of ``sides`` ([(label, Server)]): each round asks every side
+    for one burst, in an order that rotates from round to round."""
+    got = {label: [] for label, _ in sides}
+    for r in range(rounds):
+        k = r % len(sides)
+        for label, srv in sides[k:] + sides[:k]:
+            got[label].append(srv.burst())
+    return got
+
+
 def duel(ours, peers, rounds=ROUNDS, key='compose_ms'):
     """``ours``: a Server whose bursts carry 'ms' (compose + publish, or one cold estimation)
     and, for compositing, 'live_ms' (compose + publish with one robot's map changed: its
     ratio to the peer's full compositing of the same round is 'live_ratio');
     ``peers``: {label: Server} whose bursts carry ``key``. Returns {'ours_ms', 'ours_rounds',
     label: {key, 'ratio', 'rounds', 'ratios', 'cells', 'known'}}: medians over the rounds."""
-    sides = [('ours', ours)] + sorted(peers.items())
-    got = {name: [] for name, _ in sides}
-    for r in range(rounds):
-        k = r % len(sides)
-        for name, srv in sides[k:] + sides[:k]:
-            got[name].append(srv.burst())
+    got = bursts([('ours', ours)] + sorted(peers.items()), rounds)
     mine = [b['ms'] for b in got['ours']]
     live = [b.get('live_ms') for b in got['ours']]
     live = live if None not in live else None
     out = {'ours_ms': float(np.median(mine)), 'ours_rounds': mine, 'rounds': rounds,
            'ours_live_ms': float(np.median(live)) if live else None}
-    for name, _ in sides[1:]:
+    for name in sorted(peers):
         theirs = [b[key] for b in got[name]]
         ratios = [a / b for a, b in zip(mine, theirs) if b > 0]
         live_ratios = [a / b for a, b in zip(live, theirs) if b > 0] if live else []

@@ -40,29 +40,20 @@ ROWS = ['house 4', 'intel 4', 'aces 4', 'intel-sized x2', 'intel-sized x4', 'int
 
 def row_paths(name, root):
     """The row's maps written as map files (the maps run_bench.py's row of that name uses)."""
-    from multi_map_merge.core.mapio import save_map
     for n, _, pieces in inputs.configurations():
         if n == name:
-            paths = []
-            for k, (grid, _) in enumerate(pieces):
-                paths.append(os.path.join(root, '%s_%d.yaml' % (name.replace(' ', '_'), k)))
-                save_map(grid, paths[-1])
-            return paths
+            return inputs.write_inputs(name.replace(' ', '_'), pieces, root)[0]
     raise SystemExit('no row %r (rows: %s)' % (name, ', '.join(n for n, _, _ in inputs.configurations())))
 
 
 def rounds_of(sides, rounds):
-    """{label: [ms per round]}: one cycle of each side per round, the order rotating."""
-    for _, srv in sides:   # the first cycles of a process (its pool warming) are not counted
+    """{label: [ms per round]} (:func:`duel.bursts`), after two uncounted cycles of each side
+    (its pool warming)."""
+    for _, srv in sides:
         srv.burst()
         srv.burst()
-    got = {label: [] for label, _ in sides}
-    for r in range(rounds):
-        k = r % len(sides)
-        for label, srv in sides[k:] + sides[:k]:
-            b = srv.burst()
-            got[label].append(b['ms'] if 'ms' in b else b['estimate_ms'])
-    return got
+    return {label: [b['ms'] if 'ms' in b else b['estimate_ms'] for b in got]
+            for label, got in duel.bursts(sides, rounds).items()}
 
 
 def row_line(name, got):
