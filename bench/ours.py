@@ -205,9 +205,11 @@ def _read_pgm(path, flags=None):
 def memory(spec):
     """The node's memory on these maps, as bench/memtree.py's watch() measures it from outside:
     the node's imports (multi_map_merge.ros.node), its worker pool started as the node starts it
-    (before any thread), then ``reps`` cycles of what the node does with the maps: a merger
-    holding every map (new each cycle: cold), estimate(), compose(), the merged grid as a
-    message, serialised. Prints {"placed": ...} when done, then waits for stdin to close.
+    (before any thread), then cycles of what the node does with the maps: a merger holding every
+    map (new each cycle: cold), estimate(), compose(), the merged grid as a message, serialised;
+    ``reps`` cycles, and more until ``min_seconds`` have passed: the tree is sampled (a sample
+    takes tens of ms, a house's cycle 60), and a sampled peak approaches the real one only over
+    many cycles. Prints {"placed": ..., "cycles": ...} when done, then waits for stdin to close.
 
     The maps are read without cv2.imread: the node gets them as messages, and imread's probing of
     its decoders maps about 10 MB of GDAL's library that the node never touches."""
@@ -220,14 +222,16 @@ def memory(spec):
                                                   'IMREAD_GRAYSCALE': 0})
     cfg = MergeConfig()
     grids = [mapio.load_map(p) for p in spec['paths']]
-    for _ in range(int(spec.get('reps', 3))):
+    t0, cycles = time.monotonic(), 0
+    while cycles < int(spec.get('reps', 3)) or time.monotonic() - t0 < float(spec.get('min_seconds', 0)):
         m = MapMerger(cfg)
         for k, g in enumerate(grids):
             m.update_map('r%02d' % k, g)
         m.estimate()
         publish(m.compose())
+        cycles += 1
     time.sleep(0.1)
-    print(json.dumps({'placed': len(m.placements()) - 1}), flush=True)
+    print(json.dumps({'placed': len(m.placements()) - 1, 'cycles': cycles}), flush=True)
     sys.stdin.read()
 
 

@@ -117,7 +117,8 @@ def rows_table(rows, peer_note):
     out += ['', 'MEMORY AND CORRECTNESS  (placed: robots put in the merged frame besides the reference; '
             'ok: within %.1f m and %.0f deg of the truth; peak memory: ours = the node\'s process tree '
             '(bench/ours.py --memory: the node\'s imports, its workers forked as the node forks them, '
-            'its work on the maps), every physical page counted once, sampled every 20 ms (the node\'s '
+            'its work on the maps: cold cycles repeated for 3 s), every physical page counted once, sampled '
+            'about every 35 ms (the node\'s '
             'process alone in brackets); m-explore: its process\'s peak RSS)' % (TOL_M, TOL_DEG),
             h, '-' * len(h)]
     for r in rows:

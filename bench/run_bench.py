@@ -42,13 +42,18 @@ def run_ours_once(paths, truth, pairs, root, reps):
     return json.loads(r.stdout.strip().splitlines()[-1])
 
 
+MEMORY_SECONDS = 3.0   # cold cycles repeated for at least this long while the tree is sampled
+
+
 def memory_ours(paths, root, reps):
     """The node's memory on these maps (bench/ours.py --memory, watched by bench/memtree.py):
     the peak of its process tree (the node-like process and its workers), each physical page
-    counted once; PSS where pages cannot be counted (not root)."""
+    counted once; PSS where pages cannot be counted (not root). At least ``reps`` cold cycles,
+    repeated for MEMORY_SECONDS: m-explore's figure is its exact peak (ru_maxrss), ours a
+    sampled one, which three short cycles left up to 10 MB under the peak of many."""
     spec = os.path.join(root, 'memory_%d.json' % len(os.listdir(root)))
     with open(spec, 'w') as f:
-        json.dump({'paths': paths, 'reps': reps}, f)
+        json.dump({'paths': paths, 'reps': reps, 'min_seconds': MEMORY_SECONDS}, f)
     return memtree.watch([sys.executable, os.path.join(HERE, 'ours.py'), '--memory', spec])
 
 
