@@ -151,7 +151,7 @@ class Sampler:
     largest figures seen (a sampled peak: a spike between two samples is missed; the sum of the
     processes' VmHWM bounds it from above). Where pages are counted once (root), PSS is read
     only every :attr:`PSS_EVERY` samples: a sample of a node and two workers then takes about
-    35 ms instead of 50 (100 before the pagemap was read in merged spans)."""
+    40 ms instead of 55 (100 before the pagemap was read in merged spans)."""
 
     PSS_EVERY = 10
 

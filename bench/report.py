@@ -118,7 +118,7 @@ def rows_table(rows, peer_note):
             'ok: within %.1f m and %.0f deg of the truth; peak memory: ours = the node\'s process tree '
             '(bench/ours.py --memory: the node\'s imports, its workers forked as the node forks them, '
             'its work on the maps: cold cycles repeated for 3 s), every physical page counted once, sampled '
-            'about every 35 ms (the node\'s '
+            'about every 40 ms (the node\'s '
             'process alone in brackets); m-explore: its process\'s peak RSS)' % (TOL_M, TOL_DEG),
             h, '-' * len(h)]
     for r in rows:
