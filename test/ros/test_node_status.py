@@ -124,6 +124,12 @@ class TestNodeStatus(PiecesTest):
         self.assertEqual((kv['robots'], kv['merged']), ('2', '2'))
         self.assertEqual(kv['last_error'], '-')
         type(self).merged_at = time.time()
+        # node_status.test's ~workers (3, more than CI's cores) was read before the node's
+        # threads started: its workers were forked from it, not from a forkserver started later
+        # (which imports OpenCV again)
+        kids = children(node_pid('/' + MERGER))
+        self.assertFalse([p for p in kids if 'forkserver' in cmdline(p)], [cmdline(p) for p in kids])
+        self.assertEqual(len(worker_pids(node_pid('/' + MERGER))), 3, [cmdline(p) for p in kids])
 
     def test_2_failed_estimation_is_error_then_recovers(self):
         self.assertIsNotNone(self.merged_at, 'test_1 did not run')

@@ -5,6 +5,7 @@ from __future__ import annotations
 import fnmatch
 import functools
 import math
+import sys
 import threading
 import time
 from typing import Dict, Optional
@@ -581,11 +582,54 @@ class MergeNode:
         return TriggerResponse(True, 'all transforms forgotten')
 
 
+NODE_NAME = 'map_merge'
+
+
+def workers_before_init(argv=None) -> int:
+    """``~workers`` as the node will read it, read before ``rospy.init_node`` (which starts
+    threads): from a ``_workers:=N`` argument, else from the parameter server (one XML-RPC call,
+    no thread; the node's name and namespace from ``__name:=``, ``__ns:=`` or ROS_NAMESPACE, as
+    rospy resolves them). 0 (one per core) when it is not set, cannot be read within 2 s or is
+    invalid (load_params says why later). The pool must be forked now: a pool of another size
+    started once threads run comes from a forkserver, which imports OpenCV again (tens of MB)."""
+    import socket
+
+    import rosgraph
+    import rosgraph.names
+    import yaml
+    argv = sys.argv if argv is None else argv
+    value = None
+    for a in argv:
+        if a.startswith('_workers:='):
+            try:
+                value = yaml.safe_load(a.split(':=', 1)[1])
+            except yaml.YAMLError:
+                value = a.split(':=', 1)[1]
+    if value is None:
+        mappings = rosgraph.names.load_mappings(argv)
+        name = rosgraph.names.ns_join(rosgraph.names.get_ros_namespace(argv=argv),
+                                      mappings.get('__name', NODE_NAME))
+        old = socket.getdefaulttimeout()
+        socket.setdefaulttimeout(2.0)
+        try:
+            master = rosgraph.Master(name)
+            key = rosgraph.names.ns_join(name, 'workers')
+            if master.hasParam(key):
+                value = master.getParam(key)
+        except Exception:   # no master yet (rosrun before roscore), unreachable: the default
+            return 0
+        finally:
+            socket.setdefaulttimeout(old)
+    if value is None:
+        return 0
+    return resolve_params({'workers': value}).config.workers
+
+
 def run_merge_node() -> None:
     # the estimation workers forked before rospy starts its threads: they share the node's
-    # memory (core/workers.py); a ~workers other than the default restarts them
-    start_pool(0)
-    rospy.init_node('map_merge')
+    # memory (core/workers.py)
+    start_pool(workers_before_init())
+    rospy.init_node(NODE_NAME)
     res = load_params()
     MergeNode(res.config, res.library['diagnostic_period'], res.library_given.get('diagnostic_period', 1.0))
     rospy.spin()
