@@ -587,11 +587,12 @@ NODE_NAME = 'map_merge'
 
 def workers_before_init(argv=None) -> int:
     """``~workers`` as the node will read it, read before ``rospy.init_node`` (which starts
-    threads): from a ``_workers:=N`` argument, else from the parameter server (one XML-RPC call,
-    no thread; the node's name and namespace from ``__name:=``, ``__ns:=`` or ROS_NAMESPACE, as
-    rospy resolves them). 0 (one per core) when it is not set, cannot be read within 2 s or is
-    invalid (load_params says why later). The pool must be forked now: a pool of another size
-    started once threads run comes from a forkserver, which imports OpenCV again (tens of MB)."""
+    threads): from a ``_workers:=N`` argument, else from the parameter server (XML-RPC calls, no
+    thread; the node's name and namespace from ``__name:=``, ``__ns:=`` or ROS_NAMESPACE, as rospy
+    resolves them). 0 (one per core) when it is not set, cannot be read within 2 s or is invalid
+    (load_params says why later). The pool must be forked now: a pool of another size started
+    once threads run comes from a forkserver, which imports OpenCV again (about 100 MB more for
+    the node's tree on the house maps)."""
     import socket
 
     import rosgraph

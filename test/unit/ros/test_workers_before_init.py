@@ -2,7 +2,6 @@
 the worker pool is forked at the node's start with the size the user asked for (a pool resized
 later comes from a forkserver that imports OpenCV again). No master here: the argument form,
 and what happens when no master answers (test/ros/node_status.test reads it from a master)."""
-import os
 import time
 
 import pytest
@@ -32,5 +31,4 @@ def test_an_invalid_value_is_the_default(no_master):
 def test_no_master_is_the_default_at_once(no_master):
     t = time.monotonic()
     assert workers_before_init(['map_merge_node']) == 0
-    assert time.monotonic() - t < 2.5
-    assert os.environ['ROS_MASTER_URI'] == 'http://127.0.0.1:9/'
+    assert time.monotonic() - t < 2.5   # (refused at once; an unanswering host: 2 s)
