@@ -69,6 +69,16 @@ def configurations(quick=False):
     return confs
 
 
+def row_paths(name, root):
+    """The maps of run_bench.py's row ``name`` ('house 4', 'intel-sized x8'...) written as map
+    files under ``root``; exits naming the rows when there is none of that name."""
+    confs = configurations()
+    for n, _, pieces in confs:
+        if n == name:
+            return write_inputs(name.replace(' ', '_'), pieces, root)[0]
+    raise SystemExit('no row %r (rows: %s)' % (name, ', '.join(n for n, _, _ in confs)))
+
+
 def median_cells(paths):
     """Median cell count (width x height) of the map files ``paths``."""
     return float(np.median([g.width * g.height for g in (load_map(p) for p in paths)]))

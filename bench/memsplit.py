@@ -48,19 +48,13 @@ def resident(pid: int):
     library's writable data), library (a library's other pages)). Arrays, not a dict: reading
     must not move much of this process's own memory."""
     pages, frames, kinds = [], [], []
-    with open('/proc/%d/maps' % pid) as m, open('/proc/%d/pagemap' % pid, 'rb', buffering=0) as pm:
-        for line in m:
-            f = line.split()
-            if f[1].startswith('---') or 'vsyscall' in line:
-                continue
-            name = f[5] if len(f) > 5 else '[anon]'
+    with open('/proc/%d/pagemap' % pid, 'rb', buffering=0) as pm:
+        for lo, hi, perms, name in memtree.mappings(pid):
             kind = (KINDS.index(name) if name in KINDS else 1) if name.startswith('[') else (
-                3 if f[1].startswith('rw') else 4)
-            lo, hi = (int(x, 16) // PAGE for x in f[0].split('-'))
-            v = np.frombuffer(os.pread(pm.fileno(), (hi - lo) * 8, lo * 8), np.uint64)
-            k = np.flatnonzero((v & memtree._PRESENT) != 0)
+                3 if perms.startswith('rw') else 4)
+            k, f = memtree.present(pm.fileno(), lo, hi)
             pages.append(lo + k.astype(np.uint64))
-            frames.append(v[k] & memtree._PFN_MASK)
+            frames.append(f)
             kinds.append(np.full(k.size, kind, np.uint8))
     pages, frames, kinds = (np.concatenate(x) for x in (pages, frames, kinds))
     order = np.argsort(pages)
@@ -88,22 +82,16 @@ def measure(paths, cycles: int, idle: float) -> None:
     import ours
 
     import multi_map_merge.ros.node  # noqa: F401  (the node's imports, as bench/ours.py --memory)
-    from multi_map_merge.core import mapio, workers
+    from multi_map_merge.core import workers
     from multi_map_merge.core.config import MergeConfig
-    from multi_map_merge.core.merger import MapMerger
-    mapio.cv2 = type('cv2_without_imread', (), {'imread': staticmethod(ours._read_pgm), 'IMREAD_GRAYSCALE': 0})
-    grids = [mapio.load_map(p) for p in paths]
+    grids = ours.maps_as_the_node_reads_them(paths)
     me = os.getpid()
     before = resident(me)
     if not before[1].any():
         raise SystemExit('pagemap gives no page frames without CAP_SYS_ADMIN: run as root')
     workers.start_pool(0)
     for _ in range(cycles):
-        m = MapMerger(MergeConfig())
-        for k, g in enumerate(grids):
-            m.update_map('r%02d' % k, g)
-        m.estimate()
-        ours.publish(m.compose())
+        ours.node_cycle(MergeConfig(), grids)
     time.sleep(idle)
     node = resident(me)
     mb = lambda n: n * PAGE / 2.0 ** 20  # noqa: E731
@@ -130,12 +118,9 @@ def main() -> int:
     if a.maps:
         measure(a.maps, a.cycles, a.idle)
         return 0
-    rows = {n: pieces for n, _, pieces in inputs.configurations()}
-    if a.row not in rows:
-        raise SystemExit('no row %r (rows: %s)' % (a.row, ', '.join(rows)))
     import tempfile
     with tempfile.TemporaryDirectory(prefix='memsplit_') as root:
-        paths, _ = inputs.write_inputs(a.row.replace(' ', '_'), rows[a.row], root)
+        paths = inputs.row_paths(a.row, root)
         print(a.row, end=', ', flush=True)
         # a process of its own: building the rows took memory that the node never holds
         return subprocess.call([sys.executable, os.path.abspath(__file__), '--cycles', str(a.cycles),

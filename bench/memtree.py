@@ -79,41 +79,48 @@ def _rollup(pid: int, key: str) -> float:
 GAP_PAGES = 4096   # mappings closer than this (16 MB) are read from pagemap in one span
 
 
-def spans(pid: int) -> list:
-    """``pid``'s mappings as [lo, hi) page ranges, neighbours merged: a process that has loaded
-    OpenCV has some 2000 mappings, and reading each one's pagemap on its own made a sample of a
-    node tree take 100 ms (a house's cold cycle lasts 60: most went unseen). A gap between
-    mappings reads as pages not present. Mappings without access (guard pages, reservations)
-    are never resident and are left out."""
-    out = []
+def mappings(pid: int):
+    """``pid``'s mappings that can hold pages, as (lo, hi) page numbers, permissions and the
+    mapped file or [heap], [stack], [anon]... Mappings without access (guard pages,
+    reservations) are never resident and are left out."""
     with open('/proc/%d/maps' % pid) as m:
         for line in m:
-            rng, perms = line.split(None, 2)[:2]
-            if perms.startswith('---') or 'vsyscall' in line:
+            f = line.split()
+            if f[1].startswith('---') or 'vsyscall' in line:
                 continue
-            a, b = rng.split('-')
-            lo, hi = int(a, 16) // PAGE, int(b, 16) // PAGE
-            if out and lo - out[-1][1] < GAP_PAGES:
-                out[-1][1] = max(out[-1][1], hi)
-            else:
-                out.append([lo, hi])
+            a, b = f[0].split('-')
+            yield int(a, 16) // PAGE, int(b, 16) // PAGE, f[1], f[5] if len(f) > 5 else '[anon]'
+
+
+def present(fd: int, lo: int, hi: int):
+    """(offsets from ``lo``, frames) of the resident pages among pages [lo, hi), from the
+    pagemap open as ``fd``; nothing where the range cannot be read."""
+    try:
+        v = np.frombuffer(os.pread(fd, (hi - lo) * 8, lo * 8), np.uint64)
+    except OSError:
+        v = np.zeros(0, np.uint64)
+    k = np.flatnonzero((v & _PRESENT) != 0)
+    return k, v[k] & _PFN_MASK
+
+
+def spans(pid: int) -> list:
+    """``pid``'s mappings (:func:`mappings`) as [lo, hi) page ranges, neighbours merged: a
+    process that has loaded OpenCV has some 2000 mappings, and reading each one's pagemap on its
+    own made a sample of a node tree take 100 ms (a house's cold cycle lasts 60: most went
+    unseen). A gap between mappings reads as pages not present."""
+    out = []
+    for lo, hi, _, _ in mappings(pid):
+        if out and lo - out[-1][1] < GAP_PAGES:
+            out[-1][1] = max(out[-1][1], hi)
+        else:
+            out.append([lo, hi])
     return out
 
 
 def frames(pid: int):
     """The page frame numbers of ``pid``'s resident pages (None without permission)."""
-    out = []
     with open('/proc/%d/pagemap' % pid, 'rb', buffering=0) as pm:
-        fd = pm.fileno()
-        for lo, hi in spans(pid):
-            try:
-                buf = os.pread(fd, (hi - lo) * 8, lo * 8)
-            except OSError:
-                continue
-            v = np.frombuffer(buf, np.uint64)
-            v = v[(v & _PRESENT) != 0] & _PFN_MASK
-            if v.size:
-                out.append(v)
+        out = [present(pm.fileno(), lo, hi)[1] for lo, hi in spans(pid)]
     f = np.concatenate(out) if out else np.zeros(0, np.uint64)
     if f.size and not f.any():
         return None       # no CAP_SYS_ADMIN: the kernel reports frame 0 for every page

@@ -202,6 +202,25 @@ def _read_pgm(path, flags=None):
     return cv2.imread(path, cv2.IMREAD_GRAYSCALE if flags is None else flags)
 
 
+def maps_as_the_node_reads_them(paths):
+    """The map files ``paths`` as Grids, read without cv2.imread (see :func:`memory`)."""
+    from multi_map_merge.core import mapio
+    mapio.cv2 = type('cv2_without_imread', (), {'imread': staticmethod(_read_pgm), 'IMREAD_GRAYSCALE': 0})
+    return [mapio.load_map(p) for p in paths]
+
+
+def node_cycle(cfg, grids):
+    """What the node does with the maps in one cold cycle: a new merger holding every map,
+    estimate(), compose(), the merged grid as a message, serialised. Returns the merger."""
+    from multi_map_merge.core.merger import MapMerger
+    m = MapMerger(cfg)
+    for k, g in enumerate(grids):
+        m.update_map('r%02d' % k, g)
+    m.estimate()
+    publish(m.compose())
+    return m
+
+
 def memory(spec):
     """The node's memory on these maps, as bench/memtree.py's watch() measures it from outside:
     the node's imports (multi_map_merge.ros.node), its worker pool started as the node starts it
@@ -214,21 +233,14 @@ def memory(spec):
     The maps are read without cv2.imread: the node gets them as messages, and imread's probing of
     its decoders maps about 10 MB of GDAL's library that the node never touches."""
     import multi_map_merge.ros.node  # noqa: F401  (the node's imports, first, as in the node)
-    from multi_map_merge.core import mapio, workers
+    from multi_map_merge.core import workers
     from multi_map_merge.core.config import MergeConfig
-    from multi_map_merge.core.merger import MapMerger
     workers.start_pool(0)
-    mapio.cv2 = type('cv2_without_imread', (), {'imread': staticmethod(_read_pgm),
-                                                  'IMREAD_GRAYSCALE': 0})
     cfg = MergeConfig()
-    grids = [mapio.load_map(p) for p in spec['paths']]
+    grids = maps_as_the_node_reads_them(spec['paths'])
     t0, cycles = time.monotonic(), 0
     while cycles < int(spec.get('reps', 3)) or time.monotonic() - t0 < float(spec.get('min_seconds', 0)):
-        m = MapMerger(cfg)
-        for k, g in enumerate(grids):
-            m.update_map('r%02d' % k, g)
-        m.estimate()
-        publish(m.compose())
+        m = node_cycle(cfg, grids)
         cycles += 1
     time.sleep(0.1)
     print(json.dumps({'placed': len(m.placements()) - 1, 'cycles': cycles}), flush=True)

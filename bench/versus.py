@@ -38,14 +38,6 @@ import peer  # noqa: E402
 ROWS = ['house 4', 'intel 4', 'aces 4', 'intel-sized x2', 'intel-sized x4', 'intel-sized x8']
 
 
-def row_paths(name, root):
-    """The row's maps written as map files (the maps run_bench.py's row of that name uses)."""
-    for n, _, pieces in inputs.configurations():
-        if n == name:
-            return inputs.write_inputs(name.replace(' ', '_'), pieces, root)[0]
-    raise SystemExit('no row %r (rows: %s)' % (name, ', '.join(n for n, _, _ in inputs.configurations())))
-
-
 def rounds_of(sides, rounds):
     """{label: [ms per round]} (:func:`duel.bursts`), after two uncounted cycles of each side
     (its pool warming)."""
@@ -96,7 +88,7 @@ def main():
     print('\n'.join(lines), flush=True)
     try:
         for name in a.rows:
-            paths = row_paths(name, root)
+            paths = inputs.row_paths(name, root)
             spec = os.path.join(root, 'spec_%s.json' % name.replace(' ', '_'))
             with open(spec, 'w') as f:
                 json.dump({'paths': paths}, f)

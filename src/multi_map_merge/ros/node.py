@@ -613,16 +613,11 @@ def workers_before_init(argv=None) -> int:
         old = socket.getdefaulttimeout()
         socket.setdefaulttimeout(2.0)
         try:
-            master = rosgraph.Master(name)
-            key = rosgraph.names.ns_join(name, 'workers')
-            if master.hasParam(key):
-                value = master.getParam(key)
-        except Exception:   # no master yet (rosrun before roscore), unreachable: the default
+            value = rosgraph.Master(name).getParam(rosgraph.names.ns_join(name, 'workers'))
+        except Exception:   # not set (MasterError), no master yet (rosrun before roscore), unreachable
             return 0
         finally:
             socket.setdefaulttimeout(old)
-    if value is None:
-        return 0
     return resolve_params({'workers': value}).config.workers
 
 
