@@ -59,7 +59,7 @@ class MergeConfig:
     trust_initial_poses: bool = False        # place robots with no verified link at their prior
     known_init_poses: bool = False           # node: read m-explore's /<robot>/map_merge/init_pose_{x,y,yaw}
     # --- speed ---
-    workers: int = 0                         # estimation processes; 0 = one per core, 1 = inline
+    workers: int = 0                         # estimation processes; 0 = one per core (small maps inline), 1 = inline
     # --- persistence (node only) ---
     state_file: str = ''                     # the merger's state file (core/state.py); '' = none
 

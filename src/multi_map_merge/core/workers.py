@@ -2,7 +2,9 @@
 
 Processes, not threads: estimation is partly pure Python, and in threads it would hold the GIL
 that the node's /map and TF timers need (and two threads ran no faster than one: the GIL).
-One pool serves every merger of a process.
+One pool serves every merger of a process. Small problems are estimated inline (see
+:data:`POOL_FROM_CELLS`): a pool's workers cost memory, and on a few small maps they save tens
+of milliseconds.
 
 The workers are forked from the process while it has no other thread (:func:`start_pool`, which
 the node calls before ``rospy.init_node``): they share the process's memory, its imports (OpenCV,
@@ -31,6 +33,13 @@ if TYPE_CHECKING:   # (the merger imports this module)
 _MERGERS = itertools.count()
 _POOL = None
 _POOL_SIZE = 0
+# With ``workers: 0`` (one per core), maps whose known parts (their crops) hold fewer cells than
+# this in all are estimated in this process: on a few small maps (a Turtlebot3 team in a house or
+# a lab) the workers save a few tens of milliseconds per cold cycle, and the memory they take while
+# they work is a large share of the node's then (docs/measurements.md, "Small problems inline").
+# Larger problems, where the workers save seconds, use the pool; so does an explicit
+# ``workers`` >= 2, always.
+POOL_FROM_CELLS = 400_000
 
 
 class PairWorkers:
@@ -71,16 +80,24 @@ class PairWorkers:
         """The maps whose features are not those of their current version."""
         return [m for m in maps.values() if self._features.get(m.name, (None,))[0] != m.key]
 
-    def _features_all(self, maps: Dict[str, RobotMap]) -> None:
-        """Features of every map that changed, in the worker processes."""
+    def _features_all(self, maps: Dict[str, RobotMap], pool) -> None:
+        """Features of every map that changed, in ``pool``'s worker processes (None: here)."""
         todo = self._stale(maps)
         if not todo:
             return
         c = self.config
         levels = [self.crop(m)[0] for m in todo]
-        for m, f in zip(todo, self.map(describe_version, [c] * len(todo), levels, [self.uid] * len(todo),
-                                       [m.name for m in todo], [m.version for m in todo])):
+        for m, f in zip(todo, _map(pool, describe_version, [c] * len(todo), levels, [self.uid] * len(todo),
+                                   [m.name for m in todo], [m.version for m in todo])):
             self._features[m.name] = (m.key, f)
+
+    def pool_for(self, maps: Dict[str, RobotMap]):
+        """The worker pool that estimates these maps, or None to estimate them in this process:
+        ``workers: 1``, or ``workers: 0`` and maps smaller than :data:`POOL_FROM_CELLS`."""
+        c = self.config
+        if c.workers == 0 and sum(self.crop(m)[0].size for m in maps.values()) < POOL_FROM_CELLS:
+            return None
+        return _pool(c.workers)
 
     def input(self, m: RobotMap) -> PairInput:
         """A map as one side of a pair (its crop and features)."""
@@ -109,12 +126,12 @@ class PairWorkers:
         stale = self._stale(maps)
         # the biggest maps first: the last task to start should be a short one
         stale.sort(key=lambda m: -m.grid.width * m.grid.height)
-        pool = _pool(c.workers)
+        pool = self.pool_for(maps)
         if pool is None or not stale:
-            self._features_all(maps)
+            self._features_all(maps, pool)
             inputs = {n: self.input(maps[n]) for n in {x for ab in todo for x in ab}}
-            return self.map(align_pair, [c] * len(todo), [inputs[a] for a, _ in todo],
-                            [inputs[b] for _, b in todo], [seeds[ab] for ab in todo])
+            return _map(pool, align_pair, [c] * len(todo), [inputs[a] for a, _ in todo],
+                        [inputs[b] for _, b in todo], [seeds[ab] for ab in todo])
         from concurrent.futures import as_completed
         waiting = {pool.submit(_task, describe_version, c, self.crop(m)[0], self.uid, m.name, m.version): m
                    for m in stale}
@@ -138,16 +155,12 @@ class PairWorkers:
             submit_ready()
         return [queued[ab].result() for ab in todo]
 
-    def map(self, fn, *iterables):
-        """fn over the arguments in the worker pool (in this process when workers == 1)."""
-        pool = _pool(self.config.workers)
-        if pool is None:
-            return list(map(fn, *iterables))
-        try:
-            return list(pool.map(_task, itertools.repeat(fn), *iterables))
-        except BrokenProcessPool:
-            _discard_pool()
-            raise
+
+def _map(pool, fn, *iterables) -> list:
+    """fn over the arguments in ``pool``'s workers (in this process when it is None)."""
+    if pool is None:
+        return list(map(fn, *iterables))
+    return list(pool.map(_task, itertools.repeat(fn), *iterables))
 
 
 def _task(fn, *args):

@@ -163,3 +163,32 @@ def test_describing_a_new_version_drops_what_was_derived_from_the_former(house):
     pair.describe_version(MergeConfig(), np.zeros((50, 50), np.uint8), m._workers.uid, 'r0', version['r0'] + 1)
     assert not any(key[1] == 'r0' for key in pair._DERIVED)
     assert {key[1] for key in pair._DERIVED} == names - {'r0'}
+
+
+def _worked_here(config, maps):
+    """Whether a cold estimation of ``maps`` (name -> Grid) under ``config`` ran in this process:
+    a process that aligns a merger's pairs keeps what it derived for that merger
+    (``pair._DERIVED_OWNER``); the cells of the maps' known parts in all."""
+    from multi_map_merge.core import pair
+    from multi_map_merge.core.merger import MapMerger
+    m = MapMerger(config)
+    for name, g in maps.items():
+        m.update_map(name, g)
+    m.estimate()
+    cells = sum(m._workers.crop(r)[0].size for r in m._maps.values())
+    return pair._DERIVED_OWNER == m._workers.uid, cells
+
+
+def test_small_problems_are_estimated_inline_and_large_ones_in_the_pool(house, intel):
+    """``workers: 0``: maps under POOL_FROM_CELLS in all are estimated in this process, larger
+    ones in the worker pool; an explicit pool size uses the pool for small maps too."""
+    from multi_map_merge.core import workers
+    from multi_map_merge.core.config import MergeConfig
+    small = {'a': house, 'b': house}
+    big = {'a': intel, 'b': intel}
+    here, cells = _worked_here(MergeConfig(workers=0), small)
+    assert cells < workers.POOL_FROM_CELLS and here
+    here, cells = _worked_here(MergeConfig(workers=0), big)
+    assert cells >= workers.POOL_FROM_CELLS and not here
+    here, _ = _worked_here(MergeConfig(workers=2), small)
+    assert not here
