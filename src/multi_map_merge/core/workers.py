@@ -37,7 +37,7 @@ _POOL_SIZE = 0
 # this in all are estimated in this process: on a few small maps (a Turtlebot3 team in a house or
 # a lab) the workers save a few tens of milliseconds per cold cycle, and the memory they take while
 # they work is a large share of the node's then (docs/measurements.md, "Small problems inline").
-# Larger problems, where the workers save seconds, use the pool; so does an explicit
+# Larger problems, where the workers save up to seconds, use the pool; so does an explicit
 # ``workers`` >= 2, always.
 POOL_FROM_CELLS = 400_000
 
