@@ -22,8 +22,10 @@ Reported: the largest gap between /map messages whose cells changed during the l
 cycles, in merge periods (target <= 1.5), and the TF rate. INVALID instead of a figure when no
 estimation cycle of at least ``--min-periods`` merge periods is known to have run inside the
 measured span (from the first /map to the end of the window) for at least that long: then the
-bench did not create the condition it measures. When m-explore is built (../shared/peers/mexplore),
-its live node is measured the same way on the same maps.
+bench did not create the condition it measures. A cycle still running when the window ends is
+waited for (/diagnostics only, up to a minute) and counts for its part inside the window. When
+m-explore is built (../shared/peers/mexplore), its live node is measured the same way on the same
+maps.
 """
 from __future__ import annotations
 
@@ -88,6 +90,7 @@ def ros_env(build=True):
 
 
 DIAG_PERIOD = 1.0   # s: the node publishes /diagnostics once a second
+DIAG_GRACE_S = 60.0   # s: /diagnostics heard after the window for the cycle running at its end
 
 
 def publisher(spec):
@@ -160,9 +163,22 @@ def measure(seconds, robots, merge_period, min_periods=4):
     t_end = t_start + seconds
     while time.time() < t_end:
         time.sleep(0.1)
-    for s in subs:
+    for s in subs[:2]:
         s.unregister()
+    # A cycle still running when the window ends is reported only when it ends: /diagnostics
+    # is heard a while longer, so that a long cycle that began inside the window is known (its
+    # part inside the window is what counts, in analyse())
+    reported = len(est)
+    deadline = time.time() + DIAG_GRACE_S
+    while time.time() < deadline and not cycle_ended_since(est, reported):
+        time.sleep(0.1)
+    subs[2].unregister()
     return analyse(maps, tfs, est, t_start, t_end, merge_period, min_periods)
+
+
+def cycle_ended_since(est, k):
+    """Whether /diagnostics reported another estimation duration after its ``k``-th report."""
+    return any(v != est[k - 1][1] for _, v in est[k:]) if k else len(est) > 0
 
 
 def analyse(maps, tfs, est, t_start, t_end, merge_period, min_periods=4):
@@ -171,7 +187,8 @@ def analyse(maps, tfs, est, t_start, t_end, merge_period, min_periods=4):
     An estimation cycle of ``v`` seconds first reported at ``t`` ended at most DIAG_PERIOD before
     ``t``, so it surely ran over [t - v, t - DIAG_PERIOD]: the cycles whose sure part lies inside
     the measured span (first /map .. end) for ``min_periods`` merge periods or more are the long
-    ones; the gaps between /map messages whose cells changed are taken across them."""
+    ones (a cycle reported after ``t_end`` counts for its part before it); the gaps between /map
+    messages whose cells changed are taken across them."""
     times = [t for t, _ in maps]
     changed = [t for k, (t, c) in enumerate(maps) if k == 0 or c != maps[k - 1][1]]
 
