@@ -18,9 +18,11 @@ import sys
 import time
 from typing import List, Optional
 
+import numpy as np
 import yaml
 
 from ..core.mapio import MapFileError, load_map
+from ..core.transforms import wrap_angle
 from .simulate import SimConfig, read_carmen, simulate_carmen, simulate_world
 
 # the world of ``--world``'s default, in the package (installed with it, see CMakeLists.txt)
@@ -45,10 +47,17 @@ CARMEN_DEFAULTS = dict(max_urange=10.0, map_update_interval=10.0)
 CARMEN_DRIFT = 0.05
 
 
+def odom_heading_error(run) -> float:
+    """Degrees: the largest heading error of the robot's odometry over its run."""
+    err = wrap_angle(run.odom[:, 2] - (run.true[:, 2] - run.true[0, 2]))
+    return float(np.degrees(np.max(np.abs(err))))
+
+
 def _run_info(run) -> dict:
     return {'start': [round(float(v), 6) for v in run.start], 'distance_m': round(run.distance, 2),
             'turned_rad': round(run.turned, 2), 'duration_s': round(float(run.t[-1]), 1),
-            'scans': int(len(run.scans.steps)), 'maps': len(run.maps)}
+            'scans': int(len(run.scans.steps)), 'maps': len(run.maps),
+            'odom_heading_error_deg': round(odom_heading_error(run), 2)}
 
 
 def main(argv: Optional[List[str]] = None) -> int:
@@ -66,6 +75,9 @@ def main(argv: Optional[List[str]] = None) -> int:
     ap.add_argument('--slam-drift', type=float, default=None,
                     help='scale of the SLAM drift model (default 1 for ray casting, %.2f for CARMEN logs; '
                          '0 = perfect SLAM)' % CARMEN_DRIFT)
+    ap.add_argument('--wheel-heading', action='store_true',
+                    help='odometry takes its heading from the wheels (a robot without an IMU), not from '
+                         'the gyro as a Burger\'s does')
     a = ap.parse_args(argv)
     if a.robots < 1 or a.robots > 16:
         print('make_robot_bags: --robots must be 1..16', file=sys.stderr)
@@ -84,7 +96,7 @@ def main(argv: Optional[List[str]] = None) -> int:
     base = a.output[:-4] if a.output.endswith('.bag') else a.output
     os.makedirs(os.path.dirname(os.path.abspath(base)), exist_ok=True)
     extra = dict(CARMEN_DEFAULTS) if a.carmen else {}
-    cfg = SimConfig(robots=a.robots, seed=a.seed, **extra)
+    cfg = SimConfig(robots=a.robots, seed=a.seed, wheel_heading=a.wheel_heading, **extra)
     if a.slam_drift is None:
         a.slam_drift = CARMEN_DRIFT if a.carmen else 1.0
     s = a.slam_drift ** 2
@@ -107,7 +119,8 @@ def main(argv: Optional[List[str]] = None) -> int:
     counts = write_robot_bag(base + '.bag', team, slam=not a.sensors_only)
     truth = {'world': os.path.relpath(world_path, os.path.dirname(os.path.abspath(base))),
              'source': ('carmen:' + os.path.basename(a.carmen)) if a.carmen else 'raycast',
-             'seed': a.seed, 'slam_drift': None if a.sensors_only else a.slam_drift,
+             'seed': a.seed, 'odometry_heading': 'wheels' if a.wheel_heading else 'gyro',
+             'slam_drift': None if a.sensors_only else a.slam_drift,
              'slam_model': not a.sensors_only, 'reference': team[0].name,
              'bag': os.path.basename(base + '.bag'),
              'robots': {r.name: _run_info(r) for r in team}}
@@ -121,9 +134,11 @@ def main(argv: Optional[List[str]] = None) -> int:
     print('make_robot_bags: %d robots (%s) in %.1f s + bag %.1f s: %s' % (
         len(team), truth['source'], t_sim, time.time() - t0 - t_sim, base + '.bag'))
     for r in team:
-        print('  %-6s %6.1f m driven  %5.0f s  %4d scans  %3d maps  start (%.2f, %.2f, %.2f)' % (
-            r.name, r.distance, r.t[-1], len(r.scans.steps), len(r.maps), *r.start))
+        print('  %-6s %6.1f m driven  %5.0f s  %4d scans  %3d maps  odometry heading off by up to %.1f deg  '
+              'start (%.2f, %.2f, %.2f)' % (r.name, r.distance, r.t[-1], len(r.scans.steps), len(r.maps),
+                                            odom_heading_error(r), *r.start))
     if 'single' in truth:
-        print('  single %6.1f m driven  %5.0f s: %s' % (lone.distance, lone.t[-1], base + '_single.bag'))
+        print('  single %6.1f m driven  %5.0f s  odometry heading off by up to %.1f deg: %s' % (
+            lone.distance, lone.t[-1], odom_heading_error(lone), base + '_single.bag'))
     print('  topics: ' + ', '.join('%s %d' % kv for kv in sorted(counts.items())))
     return 0

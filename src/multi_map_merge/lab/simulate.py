@@ -13,9 +13,15 @@ Error model (all deterministic for a seed):
 
 - Range noise of the LDS-02 datasheet (accuracy +-10 mm under 0.3 m, +-3 % to 6 m, +-5 % to
   8 m), each bound taken as 3 sigma of a Gaussian; no return beyond 8 m or into unmapped space.
-- Wheel odometry: every step's measured motion errs in proportion to the distance and angle
-  (variances ``odom_*``), and the wheels slip now and then (``slip_*``): metres are counted
-  that were not driven.
+- Odometry as a Burger's OpenCR firmware computes it (``turtlebot3_core``, ``calcOdometry``):
+  the distance from the wheels, the heading from the IMU. The wheels' distance errs in
+  proportion to the distance driven (variance ``odom_trans_var``) and slips now and then
+  (``slip_*``: metres are counted that were not driven). The heading is the integrated gyro
+  (the firmware takes the yaw of its IMU filter, which no magnetometer corrects), which errs by
+  a scale factor (``gyro_scale_sigma``, per robot), a residual rate bias left after the
+  firmware's calibration at start-up (``gyro_bias_sigma``, per robot) and white rate noise
+  (``gyro_noise_density``); the figures and their sources are in docs/measurements.md
+  ("A Burger's odometry").
 - SLAM (gmapping): the pose the map is built with drifts from the truth: a random walk that
   grows with the distance travelled and the angle turned (variances ``slam_*_var``, far below
   odometry's), plus a steady heading drift per metre drawn once per robot (``slam_bias``), so
@@ -61,7 +67,14 @@ class SimConfig:
     range_min: float = 0.16
     range_max: float = 8.0
     # errors (variances grow linearly with distance / angle: a random walk)
-    odom_trans_var: float = 0.02 ** 2   # m^2 per m driven
+    odom_trans_var: float = 0.02 ** 2   # m^2 per m driven (wheels)
+    # the IMU's gyro (MPU-9250 on the OpenCR 1.0), which gives a Burger's odometry its heading
+    gyro_scale_sigma: float = 0.01      # relative: sensitivity tolerance +-3 % as 3 sigma
+    gyro_bias_sigma: float = math.radians(0.005)   # rad/s left after the start-up calibration (assumed)
+    gyro_noise_density: float = math.radians(0.01)  # rad/s/sqrt(Hz): rate noise spectral density
+    # the heading from the wheels instead (a robot without an IMU; not a Burger): set
+    # ``wheel_heading`` to use these
+    wheel_heading: bool = False
     odom_rot_var: float = math.radians(2.0) ** 2   # rad^2 per m driven
     odom_turn_var: float = 0.05 ** 2    # rad^2 per rad turned
     slip_rate: float = 0.05             # slip events per second of driving
@@ -506,14 +519,28 @@ def errors(true: np.ndarray, cfg: SimConfig, rng: np.random.Generator) -> Tuple[
     for s in rng.choice(np.nonzero(moving)[0], size=min(n_slip, int(moving.sum())), replace=False) \
             if moving.any() else []:
         slip[s:s + span] += cfg.slip_gain
-    odom = integrate(noisy_increments(inc, rng, cfg.odom_trans_var, cfg.odom_rot_var, cfg.odom_turn_var, slip))
+    odom_inc = noisy_increments(inc, rng, cfg.odom_trans_var, cfg.odom_rot_var, cfg.odom_turn_var, slip)
     slam_inc = noisy_increments(inc, rng, cfg.slam_trans_var, cfg.slam_rot_var, cfg.slam_turn_var)
     # what scan matching does not see leaves a steady heading drift: it grows with the distance
     # (linearly, on top of the random walk), so a robot driving four times as far ends four
     # times as rotated and its late walls land beside its early ones
     slam_inc[:, 2] += rng.normal(0.0, cfg.slam_bias) * np.hypot(inc[:, 0], inc[:, 1])
     slam = integrate(slam_inc)
-    return odom, slam
+    if not cfg.wheel_heading:
+        # drawn after the rest, so that the SLAM poses (and the simulated maps) of a seed stay
+        # what they were with the wheels' heading
+        odom_inc[:, 2] = gyro_heading(inc[:, 2], dt, cfg, rng)
+    return integrate(odom_inc), slam
+
+
+def gyro_heading(turned: np.ndarray, dt: float, cfg: SimConfig, rng: np.random.Generator) -> np.ndarray:
+    """Heading increments (rad) that a robot's integrated gyro reports for the true ones
+    ``turned`` (rad, one per odometry step of ``dt`` s): a scale error and a rate bias drawn once
+    for the robot, plus white rate noise. The bias accrues while the robot stands still too."""
+    scale = 1.0 + rng.normal(0.0, cfg.gyro_scale_sigma)
+    bias = rng.normal(0.0, cfg.gyro_bias_sigma)
+    noise = rng.normal(0.0, 1.0, len(turned)) * cfg.gyro_noise_density * math.sqrt(dt)
+    return turned * scale + bias * dt + noise
 
 
 def run_robot(name: str, world: World, true: np.ndarray, cfg: SimConfig, rng: np.random.Generator) -> RobotRun:

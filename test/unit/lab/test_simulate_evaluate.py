@@ -88,8 +88,14 @@ def test_errors_grow_with_distance(team):
         truth = relative(run.true[0], run.true[-1])
         return math.hypot(*(run.odom[-1, :2] - truth[:2]))
 
+    def odom_heading_error(run):
+        truth = relative(run.true[0], run.true[-1])
+        return abs(wrap_angle(run.odom[-1, 2] - truth[2]))
+
+    for run in robots:
+        assert odom_error(run) > slam_error(run)[0]          # the wheels' distance is the worse of the two
     for run in robots + [lone]:
-        assert odom_error(run) > slam_error(run)[0]          # wheel odometry is the worse of the two
+        assert odom_heading_error(run) < math.radians(5.0)  # a Burger's heading is its gyro's
     assert slam_error(lone)[1] > max(slam_error(r)[1] for r in robots)
 
 
