@@ -49,6 +49,7 @@ class MergeConfig:
     min_overlap_cells: int = 400
     agreement_tolerance: int = 2             # cells
     pose_graph: bool = True                  # place robots by all verified links at once (cycles averaged)
+    joint_placement: bool = True             # then refine each placement against every placed map (core/joint.py)
     ambiguity_margin: float = 0.1            # a 2nd placement verifying within this agreement: unmerged; 0 = off
     max_position_sigma: float = 0.1          # m: a placement whose 2-sigma position exceeds this is weakly pinned
     # --- prior knowledge of where robots started (optional). A prior is the pose of a robot's map

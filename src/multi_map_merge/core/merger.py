@@ -15,6 +15,7 @@ and computes outside it.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import threading
 import time
@@ -23,7 +24,7 @@ from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
-from . import links, placement, verify
+from . import joint, links, placement, verify
 from .composite import Lattice, Patch, composite, lattice_for, warp_patch
 from .config import MergeConfig
 from .grid import DEFAULT_FREE_THRESH, DEFAULT_OCC_THRESH, Grid, rescale, same_grid
@@ -130,6 +131,7 @@ class MapMerger:
         self._restored: Dict[Tuple[str, str], Edge] = {}
         self._merged = None       # (patch identities, merged grid) of the last compose
         self._graph_key = None    # the links the last pose-graph placement was made of
+        self._joint_key = None    # the maps the last joint refinement was made of (_joint)
         self.state_version = 0    # bumped whenever links or placements change (for persistence)
         self._prior_epoch = 0     # bumped when a prior changes: a cycle begun before is discarded
 
@@ -509,6 +511,8 @@ class MapMerger:
         placement.add_priors(c, best, maps, ref)
         # the kept placement stays unless the new one is better
         new, events = placement.hysteresis(c, best, old, edges, ref, regraphed)
+        # every placement refined against every placed map it overlaps, when one was adopted anew
+        new = self._joint(maps, new, old, ref)
         # how well each is pinned: its links' covariances, along its chain or by the graph
         placement.pin(c, new, edges, ref, graph_key is not None)
         with self._lock:
@@ -525,6 +529,45 @@ class MapMerger:
             self._placements = new
             self._settle_reference_locked()   # fixed once another robot is merged with it
         return events
+
+    def _joint(self, maps: Dict[str, RobotMap], new: Dict[str, Placement], old: Dict[str, Placement],
+               ref: str) -> Dict[str, Placement]:
+        """The placements ``new`` (after hysteresis) refined by :mod:`joint` against each other,
+        the reference and robots at their prior fixed; a robot it moves gets a new
+        :class:`Placement` (its ``graph_T`` the links' pose). Runs only when its inputs changed
+        since it last ran: a placement adopted anew (``new`` against ``old``) or a placed
+        robot's map. Its result is a function of those inputs (:mod:`joint`), so a cycle in
+        which nothing changed cannot move a robot, and a move smaller than SAME_POSE keeps the
+        robot's placement as it was (a map that grew a little does not move its TF)."""
+        c = self.config
+        if not c.joint_placement:
+            return new
+        linked = [n for n, p in sorted(new.items()) if n in maps and (n == ref or p.via != placement.PRIOR)]
+        key = (ref, tuple((n, maps[n].key) for n in linked))
+        with self._lock:
+            same = key == self._joint_key
+        if same and not joint.anchors_changed(new, old):
+            return new
+        robots = {}
+        for n in linked:
+            g = maps[n].grid
+            r = joint.Robot.of(g, g.levels(c.free_thresh, c.occupied_thresh),
+                               g.known_values(c.free_thresh, c.occupied_thresh))
+            if r is not None:
+                robots[n] = r
+        if ref not in robots:
+            return new
+        anchors = {n: (new[n].graph_T if new[n].graph_T is not None else new[n].T) for n in robots}
+        poses = joint.refine_placements(robots, anchors, ref, lattice_for(maps[ref].grid), c.agreement_tolerance)
+        with self._lock:
+            self._joint_key = key
+        out = dict(new)
+        for n, T in poses.items():
+            d, a = pose_distance(T, new[n].T)
+            if d > joint.SAME_POSE[0] or a > joint.SAME_POSE[1]:
+                moved = not np.array_equal(T, anchors[n])
+                out[n] = dataclasses.replace(new[n], T=T, graph_T=anchors[n] if moved else None)
+        return out
 
     def _patch(self, m: RobotMap, T: np.ndarray, lattice: Lattice) -> Optional[Patch]:
         key = (m.version, T.tobytes(), lattice.key())

@@ -12,6 +12,7 @@ Five steps, in this order (:meth:`merger.MapMerger._place` runs them):
    those are trusted.
 4. :func:`hysteresis`: per robot the kept placement stays unless the new one is more reliable
    by ``replace_margin``, its chain broke, or the pose graph moved everyone.
+   Then :mod:`joint` refines every placement against every placed map it overlaps.
 5. :func:`pin`: each placement's covariance (its links' propagated along its chain, or
    combined by the pose graph) and whether it is weakly pinned (``max_position_sigma``).
 """
@@ -65,6 +66,9 @@ class Placement:
     # 3x3 pose its chain of links gives (T before the pose graph moved it): what
     # :func:`chain_holds` checks the links against later
     chain_T: Optional[np.ndarray] = None
+    # 3x3 pose the links gave (chain or pose graph) before the joint refinement moved T
+    # (:mod:`joint`): the centre of its search window; None when not refined
+    graph_T: Optional[np.ndarray] = None
 
 
 def widest_paths(edges: Links, names: Iterable[str], ref: str) -> Dict[str, Placement]:

@@ -59,9 +59,20 @@ def agreement(lv_dst: np.ndarray, lv_src: np.ndarray, A: np.ndarray,
     margin, and ``walls_dst``: ``Walls.of(lv_dst, tolerance)``, when the caller has them (a
     pair scores many hypotheses on the same grids).
     """
+    agree, conflict, overlap = agreement_counts(lv_dst, lv_src, A, tolerance, boxes, walls_dst)
+    if agree + conflict == 0:
+        return 0.0, overlap
+    return agree / float(agree + conflict), overlap
+
+
+def agreement_counts(lv_dst: np.ndarray, lv_src: np.ndarray, A: np.ndarray,
+                     tolerance: int, boxes: Optional[Tuple] = None,
+                     walls_dst: Optional[Walls] = None) -> Tuple[int, int, int]:
+    """:func:`agreement`'s counts: (occupied cells that agree, occupied cells that land on
+    free space, overlap in cells); what sums over several overlaps (:mod:`joint`)."""
     box_d, box_s = boxes if boxes is not None else (known_bbox(lv_dst), known_bbox(lv_src))
     if box_d is None or box_s is None:
-        return 0.0, 0
+        return 0, 0, 0
     # Only where src's known box lands (grown by the tolerance, for the dilation) can anything
     # be counted: on partial overlaps that is a small part of dst's box.
     m = tolerance + 1
@@ -72,7 +83,7 @@ def agreement(lv_dst: np.ndarray, lv_src: np.ndarray, A: np.ndarray,
     c0 = max(box_d[2] - m, int(math.floor(corners[:, 0].min())) - m, 0)
     c1 = min(box_d[3] + m, int(math.ceil(corners[:, 0].max())) + 1 + m, lv_dst.shape[1])
     if r1 <= r0 or c1 <= c0:
-        return 0.0, 0
+        return 0, 0, 0
     shift = se2(-c0, -r0, 0.0)
     M = (shift @ A)[:2]
     warped = cv2.warpAffine(lv_src, M, (c1 - c0, r1 - r0), flags=cv2.INTER_NEAREST,
@@ -83,12 +94,10 @@ def agreement(lv_dst: np.ndarray, lv_src: np.ndarray, A: np.ndarray,
     w = Walls.of(warped, tolerance)
     overlap = int(np.count_nonzero(ref.known & w.known))
     if overlap == 0:
-        return 0.0, 0
+        return 0, 0, 0
     agree = np.count_nonzero(ref.occupied & w.near) + np.count_nonzero(w.occupied & ref.near)
     conflict = np.count_nonzero(ref.occupied & w.free_far) + np.count_nonzero(w.occupied & ref.free_far)
-    if agree + conflict == 0:
-        return 0.0, overlap
-    return agree / float(agree + conflict), overlap
+    return int(agree), int(conflict), overlap
 
 
 def pose_on_grids(config: MergeConfig, parent: Grid, child: Grid, T: np.ndarray) -> Tuple[float, int]:

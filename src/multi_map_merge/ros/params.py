@@ -258,6 +258,7 @@ RULES: Dict[str, Tuple[Callable[[Any], Any], str]] = {
     'min_overlap_cells': _int(0),
     'agreement_tolerance': _int(0),
     'pose_graph': (_bool, 'true or false'),
+    'joint_placement': (_bool, 'true or false'),
     'ambiguity_margin': _UNIT,
     'max_position_sigma': _float(0.0, None, lo_open=True),
     'stale_map_timeout': _float(0.0),
