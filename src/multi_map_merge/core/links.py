@@ -48,6 +48,7 @@ class Edge:
     stamp: float
     overlap: int = 0      # cells known in both grids when it was estimated
     cov: Optional[np.ndarray] = None
+    bend: float = 0.0     # metres the halves of its overlap land apart (core/bend.py); 0 = unknown
 
     def towards(self, parent: str) -> np.ndarray:
         """Pose of the other robot's frame in ``parent``'s frame."""

@@ -24,7 +24,7 @@ from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
-from . import joint, links, placement, verify
+from . import bend, joint, links, placement, verify
 from .composite import Lattice, Patch, composite, lattice_for, warp_patch
 from .config import MergeConfig
 from .grid import DEFAULT_FREE_THRESH, DEFAULT_OCC_THRESH, Grid, rescale, same_grid
@@ -106,6 +106,9 @@ class RobotStatus:
     # seconds (time.time()) when its last map arrived (republished unchanged included); None
     # before any
     map_received: Optional[float] = None
+    # its verified links whose overlap bends (core/bend.py): (the other robot, metres the
+    # overlap's halves land apart), at least bend.REPORT_BEND, largest first
+    bends: Tuple[Tuple[str, float], ...] = ()
 
 
 class MapMerger:
@@ -373,9 +376,11 @@ class MapMerger:
                 pl = self._placements.get(n)
                 links = tuple(sorted({b if a == n else a for (a, b) in self._edges if n in (a, b)}))
                 covs = tuple((a, b, e.cov) for (a, b), e in sorted(self._edges.items()) if n in (a, b))
+                bends = tuple(sorted(((b if a == n else a, e.bend) for (a, b), e in self._edges.items()
+                                      if n in (a, b) and e.bend >= bend.REPORT_BEND), key=lambda x: -x[1]))
                 m = self._maps.get(n)
                 out[n] = RobotStatus(pl is not None, n == ref, pl, last, other, self._errors.get(n, ''), links,
-                                     covs, m.received if m is not None else None)
+                                     covs, m.received if m is not None else None, bends)
             return out
 
     def export_state(self) -> Dict:
@@ -473,7 +478,7 @@ class MapMerger:
             if self._edges.get(key) is not old:
                 return               # forgotten (reset, map restart) meanwhile
             self._edges[key] = Edge(pa.name, ch.name, T, inlier_ratio, r.agreement, inliers, r.matches,
-                                    time.time(), r.overlap, r.cov)
+                                    time.time(), r.overlap, r.cov, r.bend)
             self.state_version += 1
 
     def align_pair(self, pa: RobotMap, ch: RobotMap, seed: int = 0) -> PairResult:

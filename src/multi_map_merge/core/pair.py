@@ -13,7 +13,7 @@ from typing import Dict, Optional, Tuple
 import cv2
 import numpy as np
 
-from . import covariance, matching, verify
+from . import bend, covariance, matching, verify
 from .config import MergeConfig
 from .features import FeatureExtractor, Features, coarsening
 from .grid import known_bbox
@@ -42,7 +42,10 @@ class PairResult:
         stamp: seconds (time.time()) when the merger received it; 0 until then.
         cov: of an accepted estimate, 3x3 covariance of (x, y, yaw) of the link's pose (the
             child's map frame in the parent's): metres^2 / radians^2, x, y in the parent's
-            frame (:mod:`covariance`); None when not computed.
+            frame (:mod:`covariance`, with the model error of :mod:`bend` added); None when not
+            computed.
+        bend: of an accepted estimate, metres two halves of the overlap land apart under their
+            own fits (:mod:`bend`); 0 when not measured.
     """
 
     A: Optional[np.ndarray]
@@ -56,6 +59,7 @@ class PairResult:
     runner_up: Optional[Tuple[float, float, float]] = None
     stamp: float = 0.0
     cov: Optional[np.ndarray] = None
+    bend: float = 0.0
 
 
 @dataclass
@@ -296,6 +300,13 @@ def _pin(config: MergeConfig, pa: PairInput, ch: PairInput, r: PairResult) -> No
                 # the search's moments about its best pose, plus how far ICP moved it (no search
                 # again: ICP polished the pose within the search's window)
                 r.A, r.agreement, r.overlap, cov = A2, ag, ov, p.cov_best + _offset_outer(A2, p.A, p.centre)
+    # a map that bends: the halves of the overlap want poses apart, which the walls' likelihood
+    # about one pose does not see
+    spread = 0.5 * (bend.rms_spread(_wall_points(pa)) + bend.rms_spread(_wall_points(ch)))
+    b = bend.across_halves(_field(pa), p.points, r.A, pa.resolution, p.centre, spread)
+    if b is not None:
+        cov = cov + b.cov_cells()
+        r.bend = b.metres
     T = image_to_pose(_grid_cells(r.A, pa, ch), pa.resolution, pa.origin, ch.resolution, ch.origin)
     centre = p.centre + np.array(pa.offset, np.float64)
     r.cov = covariance.metric_covariance(cov, centre, T, pa.resolution, pa.origin)

@@ -28,11 +28,12 @@ from .transforms import se2, xyyaw
 def link_dict(e: Edge) -> Dict[str, Any]:
     """A verified link as plain data (the state file's ``edges``): x, y, yaw (metres, radians:
     the pose of the child's map frame in the parent's), parent, child, inlier_ratio,
-    agreement, inliers, matches, and how well the grids pin it (:func:`cov_fields`)."""
+    agreement, inliers, matches, bend (metres its overlap's halves land apart, :mod:`bend`; 0
+    unknown), and how well the grids pin it (:func:`cov_fields`)."""
     x, y, yaw = xyyaw(e.T)
     return {'x': float(x), 'y': float(y), 'yaw': float(yaw), 'parent': e.parent, 'child': e.child,
             'inlier_ratio': float(e.inlier_ratio), 'agreement': float(e.agreement),
-            'inliers': int(e.inliers), 'matches': int(e.matches), **cov_fields(e.cov)}
+            'inliers': int(e.inliers), 'matches': int(e.matches), 'bend': float(e.bend), **cov_fields(e.cov)}
 
 
 def link_from_dict(d: Dict[str, Any], stamp: float) -> Edge:
@@ -44,6 +45,7 @@ def link_from_dict(d: Dict[str, Any], stamp: float) -> Edge:
              float(ratio), float(d['agreement']), int(d['inliers']), int(d.get('matches', 0)), stamp)
     if d.get('cov') is not None:   # files written before links had a covariance have none
         e.cov = np.array([float(v) for v in d['cov']]).reshape(3, 3)
+    e.bend = float(d.get('bend', 0.0))   # (files written before bends were measured have none)
     return e
 
 

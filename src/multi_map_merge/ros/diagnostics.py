@@ -101,6 +101,11 @@ def robot_diagnostic(robot: str, st: RobotStatus, gone: bool, now: float,
     else:
         s.level = DiagnosticStatus.WARN
         s.message = 'not merged' + (': ' + st.last_attempt.reason if st.last_attempt else '')
+    if st.bends:
+        # a note, not a level: the bend is in the link's covariance, which sets ``weak``
+        s.message += '; ' + '; '.join("%s's map bends %.2f m across its overlap with %s" % (robot, m, other)
+                                      for other, m in st.bends)
+        kv += [('bends', ' '.join('%s:%.2f' % (other, m) for other, m in st.bends))]
     if gone:
         s.message += ' (vanished: no publisher of its map; its last map and transform are kept)'
         s.level = max(s.level, DiagnosticStatus.WARN)

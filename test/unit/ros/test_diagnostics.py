@@ -275,3 +275,13 @@ def test_node_warns_naming_listed_robots_that_never_sent_a_map():
     assert values(s)['no_map_yet'] == 'tb3_2'
     s = node_diagnostic(st, gone, 0.1, None, 2, 2, now=NOW, stale_map_timeout=30.0, no_map_yet={})
     assert s.level == DiagnosticStatus.OK and values(s)['no_map_yet'] == '-'
+
+
+def test_a_bent_overlap_is_named_in_the_robots_message():
+    st = merged()
+    st.bends = (('tb3_0', 0.43),)
+    s = robot_diagnostic('tb3_2', st, False, NOW)
+    assert s.message == "merged via tb3_0; tb3_2's map bends 0.43 m across its overlap with tb3_0"
+    assert s.level == DiagnosticStatus.OK          # the bend is in the covariance, which sets weak
+    assert values(s)['bends'] == 'tb3_0:0.43'
+    assert 'bends' not in values(robot_diagnostic('tb3_1', merged(), False, NOW))
