@@ -41,8 +41,11 @@ MIN_HALF_POINTS = 60
 MIN_SPREAD_CELLS = 20.0
 # ICP's first pairing distance for a half (cells): from the link's pose, a half of a bent overlap lies a few cells off
 HALF_GATE = 3.0
-# the model error added to a link's covariance: (BEND_SCALE * half the bend)^2
+# the model error added to a link's covariance: (BEND_SCALE * reach * half the bend)^2
 BEND_SCALE = 2.0
+# cells two halves of a map that does not bend land apart anyway (their fits on a lattice): only
+# a bend beyond it is model error
+NOISE_CELLS = 1.0
 # a bend (metres, the largest distance between the halves' fits over the overlap) reported on
 # /diagnostics from this size
 REPORT_BEND = 0.2
@@ -69,8 +72,10 @@ class Bend:
     reach: float = 1.0
 
     def cov_cells(self) -> np.ndarray:
-        """The model error's covariance (3x3 of dx, dy cells, dyaw radians about ``centre``)."""
-        k = BEND_SCALE * self.reach * 0.5
+        """The model error's covariance (3x3 of dx, dy cells, dyaw radians about ``centre``):
+        of the bend beyond :data:`NOISE_CELLS`, in position and turn alike."""
+        beyond = max(0.0, 1.0 - NOISE_CELLS / self.cells) if self.cells > 0 else 0.0
+        k = BEND_SCALE * self.reach * 0.5 * beyond
         return np.diag([(k * self.cells) ** 2] * 2 + [(k * self.d[2]) ** 2])
 
 

@@ -24,7 +24,7 @@ from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
-from . import bend, joint, links, placement, verify
+from . import bend, corroborate, joint, links, placement, verify
 from .composite import Lattice, Patch, composite, lattice_for, warp_patch
 from .config import MergeConfig
 from .grid import DEFAULT_FREE_THRESH, DEFAULT_OCC_THRESH, Grid, rescale, same_grid
@@ -318,7 +318,27 @@ class MapMerger:
         for (a, b), r in zip(todo, results):
             self._keep(maps[a], maps[b], r)
         # (4) place every robot through its most reliable links; (6) that is its TF
-        return events + self._place(maps, ref)
+        events += self._place(maps, ref)
+        # links of little evidence that corroborate each other (a cycle closes): kept, placed again
+        if self._corroborate(maps):
+            events += self._place(maps, ref)
+        return events
+
+    def _corroborate(self, maps: Dict[str, RobotMap]) -> List[str]:
+        """Keep the pair results refused only for too little evidence that corroborate each
+        other (:mod:`corroborate`); returns their events (none: nothing changed)."""
+        with self._lock:
+            results = {k: r for k, r in self._results.items()
+                       if k not in self._edges and k[0] in maps and k[1] in maps}
+            placed = {n: p.T for n, p in self._placements.items()}
+        poses = corroborate.poses_of(results, lambda k, r: image_to_pose(
+            r.A, maps[k[0]].grid.resolution, maps[k[0]].grid.origin, maps[k[1]].grid.resolution,
+            maps[k[1]].grid.origin))
+        keys, events = corroborate.corroborated(poses, placed)
+        for a, b in sorted(keys):
+            r = dataclasses.replace(results[(a, b)], accepted=True, reason='')
+            self._keep(maps[a], maps[b], r)
+        return events if keys else []
 
     def compose(self) -> Optional[Grid]:
         """(5) Warp every placed map into the merged frame and composite; None before any map

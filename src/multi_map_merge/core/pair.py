@@ -46,6 +46,9 @@ class PairResult:
             computed.
         bend: of an accepted estimate, metres two halves of the overlap land apart under their
             own fits (:mod:`bend`); 0 when not measured.
+        few_evidence: refused only for too little evidence (fewer than ``few_inliers`` RANSAC
+            inliers, agreeing below ``few_inliers_min_agreement``), every other gate passed: a
+            link that another such link can corroborate (:mod:`corroborate`).
     """
 
     A: Optional[np.ndarray]
@@ -60,6 +63,7 @@ class PairResult:
     stamp: float = 0.0
     cov: Optional[np.ndarray] = None
     bend: float = 0.0
+    few_evidence: bool = False
 
 
 @dataclass
@@ -255,7 +259,7 @@ def align_pair(config: MergeConfig, pa: PairInput, ch: PairInput, seed: int = 0)
     hypothesis is returned, or the best rejected one with its reason (also when a clearly
     different hypothesis verifies nearly as well: ambiguous, see :func:`_check_ambiguity`)."""
     r = _align_crops(config, pa, ch, seed)
-    if r.accepted:
+    if r.accepted or r.few_evidence:     # (a refused link may be corroborated: it needs its covariance)
         _pin(config, pa, ch, r)
     if r.A is not None:
         r.A = _grid_cells(r.A, pa, ch)
@@ -329,6 +333,7 @@ def _judge(c: MergeConfig, pa: PairInput, ch: PairInput, h: PairResult) -> None:
         # main; right links of few inliers agree almost perfectly (docs/measurements.md)
         h.reason = ('too little evidence: %d inliers and agreement %.3f (under %d inliers a link needs %.2f)'
                     % (h.inliers, h.agreement, c.few_inliers, c.few_inliers_min_agreement))
+        h.few_evidence = True
     else:
         h.accepted = True
 
