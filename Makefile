@@ -31,7 +31,7 @@ ROS_PORT ?= 11311
 ROS_ENV := source $(SETUP) && { [ ! -f $(GMAPPING_WS)/devel/setup.bash ] || source $(GMAPPING_WS)/devel/setup.bash --extend; } && export ROS_HOME=$(WS)/ros_home ROS_LOG_DIR=$(WS)/ros_home/log \
   ROS_IP=127.0.0.1 ROS_MASTER_URI=http://127.0.0.1:$(ROS_PORT) && unset ROS_HOSTNAME
 
-.PHONY: deps build gmapping test unit demo bench clean setup-path test-focal lint
+.PHONY: deps build gmapping test unit demo bench accuracy bend-sweep clean setup-path test-focal lint
 
 # $(call apt_install,PACKAGES): apt-get installs those of PACKAGES dpkg does not list as installed
 define apt_install
@@ -89,6 +89,24 @@ clean:
 # (python3-matplotlib, for its plot, is one of APT_PKGS: build installs it)
 bench: build
 	@$(ROS_ENV) && cd $(CURDIR) && python3 bench/run_bench.py && python3 bench/live_gap.py && python3 bench/pinning_cost.py | tee bench/results/pinning_cost.txt
+
+# The paper's experiment as a benchmark (not part of `make test`): 4 Turtlebot3s merged vs 1 alone,
+# every map made by real gmapping (slam_gmapping_replay, every scan), 5 seeds x 2 worlds (the AWS
+# small house, the Intel lab of ../shared/data), against the rigid bound and m-explore's and MRPT's
+# merges; writes bench/results/accuracy.{json,md,txt}. Bags and maps are cached in /tmp/mmm_accuracy.
+# ACCURACY_ARGS=--quick: 1 seed, the house only (accuracy_quick.*); see bench/README.md.
+ACCURACY_ARGS ?=
+accuracy: build gmapping
+	@$(ROS_ENV) && cd $(CURDIR) && python3 bench/accuracy.py $(ACCURACY_ARGS)
+
+# Placement covariances against the real error on REAL gmapping maps of REAL CARMEN logs (not
+# part of `make test`): 6 logs x 3 and 4 robots x 2 seeds, one gmapping per robot, one merge per
+# case; writes bench/results/bend_sweep.{json,txt}. Bags, maps and fits are cached in /tmp/mmm_bend:
+# a rerun only merges. BEND_SWEEP_ARGS, e.g. BEND_SWEEP_ARGS="--merge-only --config max_position_sigma=0.2 --stem x";
+# see bench/README.md.
+BEND_SWEEP_ARGS ?=
+bend-sweep: build gmapping
+	@$(ROS_ENV) && cd $(CURDIR) && python3 bench/bend_sweep.py $(BEND_SWEEP_ARGS)
 
 # The workspace's setup.bash, for the README's `rosrun multi_map_merge ...` commands in a shell:
 #   make build && source "$(make -s setup-path)"
