@@ -88,23 +88,12 @@ def bag_scans_and_odom(bag_path: str, robots: Sequence[str], scan_topic: str = '
                        odom_topic: str = '/{robot}/odom') -> Dict[str, Dict[str, np.ndarray]]:
     """Per robot, the stamps of its scans (topic ``scan_topic``, ``{robot}`` replaced by its name)
     and its odometry (``odom_topic``) at them, from a bag (seconds; x, y m, yaw rad)."""
-    import rosbag  # only here: the rule above needs no ROS
-    scans: Dict[str, List[float]] = {r: [] for r in robots}
-    odo: Dict[str, List[List[float]]] = {r: [] for r in robots}
-    topics = {}
-    for r in robots:
-        topics[scan_topic.format(robot=r)] = (r, 'scan')
-        topics[odom_topic.format(robot=r)] = (r, 'odom')
-    with rosbag.Bag(bag_path) as bag:
-        for topic, msg, _ in bag.read_messages(topics=list(topics)):
-            r, kind = topics[topic]
-            s = msg.header.stamp.to_sec()
-            if kind == 'scan':
-                scans[r].append(s)
-            else:
-                p, q = msg.pose.pose.position, msg.pose.pose.orientation
-                yaw = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
-                odo[r].append([s, p.x, p.y, yaw])
+    from ..ros.replay import read_stamps_and_poses  # rosbag: only when reading a bag
+    scan_topics = {r: scan_topic.format(robot=r) for r in robots}
+    odom_topics = {r: odom_topic.format(robot=r) for r in robots}
+    read = read_stamps_and_poses(bag_path, list(scan_topics.values()), list(odom_topics.values()))
+    scans = {r: read[scan_topics[r]] for r in robots}
+    odo = {r: read[odom_topics[r]] for r in robots}
     out = {}
     for r in robots:
         if not scans[r] or len(odo[r]) < 2:

@@ -105,6 +105,24 @@ def write_robot_bag(path: str, runs, clock_rate: float = 10.0, slam: bool = True
     return counts
 
 
+def read_stamps_and_poses(path: str, stamp_topics: Sequence[str],
+                          odom_topics: Sequence[str]) -> Dict[str, list]:
+    """From a bag: per topic of ``stamp_topics`` its messages' header stamps (seconds), per topic
+    of ``odom_topics`` its nav_msgs/Odometry as [stamp, x, y, yaw] (seconds, metres, radians)."""
+    import rosbag
+    out: Dict[str, list] = {t: [] for t in list(stamp_topics) + list(odom_topics)}
+    odom = set(odom_topics)
+    with rosbag.Bag(path) as bag:
+        for topic, msg, _ in bag.read_messages(topics=list(out)):
+            s = msg.header.stamp.to_sec()
+            if topic in odom:
+                p = msg.pose.pose.position
+                out[topic].append([s, p.x, p.y, quaternion_yaw(msg.pose.pose.orientation)])
+            else:
+                out[topic].append(s)
+    return out
+
+
 def read_bag_maps(path: str, max_cells: int = 100_000_000) -> Dict[str, List[Grid]]:
     """Every OccupancyGrid in a bag, per topic, in order (numpy all the way)."""
     import rosbag
