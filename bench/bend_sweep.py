@@ -86,15 +86,9 @@ GMAPPING_PARAMS: Dict[str, Any] = {'maxUrange': 20.0}
 NICENESS = 15
 REFERENCE = 'tb3_0'
 
-_print_lock = threading.Lock()
-_out_lines: List[str] = []
-
-
-def say(*lines: str) -> None:
-    with _print_lock:
-        for ln in lines:
-            print(ln, flush=True)
-            _out_lines.append(ln)
+# printed lines, also kept for bend_sweep.txt: accuracy.py's (its runs print through it too)
+say = acc.say
+_out_lines = acc._out_lines
 
 
 def log_path(log: str) -> str:
