@@ -52,6 +52,8 @@ class MergeConfig:
     joint_placement: bool = True             # then refine each placement against every placed map (core/joint.py)
     ambiguity_margin: float = 0.1            # a 2nd placement verifying within this agreement: unmerged; 0 = off
     max_position_sigma: float = 0.1          # m: a placement whose 2-sigma position exceeds this is weakly pinned
+    map_drift: float = 0.02                  # m per m from its origin a map's walls sit off (1 sigma, core/drift.py)
+    map_drift_yaw: float = 0.4               # deg per sqrt(m) from a map's origin its walls sit turned (1 sigma)
     # --- prior knowledge of where robots started (optional). A prior is the pose of a robot's map
     # frame in one frame common to all priors; only differences count (the merged frame is the
     # reference robot's map frame, and a link is checked against prior_ref^-1 * prior_robot) ---

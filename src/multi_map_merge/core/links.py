@@ -49,6 +49,8 @@ class Edge:
     overlap: int = 0      # cells known in both grids when it was estimated
     cov: Optional[np.ndarray] = None
     bend: float = 0.0     # metres the halves of its overlap land apart (core/bend.py); 0 = unknown
+    # where it was fitted: the overlap's centre (x, y), metres in the parent's frame (core/drift.py); None = unknown
+    centre: Optional[Tuple[float, float]] = None
 
     def towards(self, parent: str) -> np.ndarray:
         """Pose of the other robot's frame in ``parent``'s frame."""

@@ -498,7 +498,7 @@ class MapMerger:
             if self._edges.get(key) is not old:
                 return               # forgotten (reset, map restart) meanwhile
             self._edges[key] = Edge(pa.name, ch.name, T, inlier_ratio, r.agreement, inliers, r.matches,
-                                    time.time(), r.overlap, r.cov, r.bend)
+                                    time.time(), r.overlap, r.cov, r.bend, r.centre)
             self.state_version += 1
 
     def align_pair(self, pa: RobotMap, ch: RobotMap, seed: int = 0) -> PairResult:

@@ -46,6 +46,10 @@ class PairResult:
             computed.
         bend: of an accepted estimate, metres two halves of the overlap land apart under their
             own fits (:mod:`bend`); 0 when not measured.
+        centre: of an accepted estimate, the centre (x, y) of the child's walls on the parent's
+            known cells, metres in the parent's map frame: where the link was fitted, whose
+            distance from each map's origin is what the maps drifted on the way (:mod:`drift`);
+            None when not computed.
         few_evidence: refused only for too little evidence (fewer than ``few_inliers`` RANSAC
             inliers, agreeing below ``few_inliers_min_agreement``), every other gate passed: a
             link that another such link can corroborate (:mod:`corroborate`).
@@ -63,6 +67,7 @@ class PairResult:
     stamp: float = 0.0
     cov: Optional[np.ndarray] = None
     bend: float = 0.0
+    centre: Optional[Tuple[float, float]] = None
     few_evidence: bool = False
 
 
@@ -314,6 +319,8 @@ def _pin(config: MergeConfig, pa: PairInput, ch: PairInput, r: PairResult) -> No
     T = image_to_pose(_grid_cells(r.A, pa, ch), pa.resolution, pa.origin, ch.resolution, ch.origin)
     centre = p.centre + np.array(pa.offset, np.float64)
     r.cov = covariance.metric_covariance(cov, centre, T, pa.resolution, pa.origin)
+    W = cell_to_metric(pa.resolution, pa.origin)
+    r.centre = tuple(float(v) for v in W[:2, :2] @ centre + W[:2, 2])
 
 
 def _judge(c: MergeConfig, pa: PairInput, ch: PairInput, h: PairResult) -> None:

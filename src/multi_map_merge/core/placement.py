@@ -25,7 +25,7 @@ from typing import Dict, Iterable, List, Optional, Tuple
 
 import numpy as np
 
-from . import posegraph
+from . import drift, posegraph
 from .config import MergeConfig
 from .covariance import position_sigma
 from .links import SAME_LINK, Edge
@@ -114,6 +114,19 @@ def link_covs(edges: Links, links: list) -> List[Optional[np.ndarray]]:
     return [edges[(a, b)].cov for a, b, _, _ in links]
 
 
+def drift_covs(config: MergeConfig, edges: Links, links: list) -> List[Optional[np.ndarray]]:
+    """:func:`link_covs` with each map's drift between its origin and the link's overlap added
+    (:func:`drift.link_covariance` at ``map_drift``, ``map_drift_yaw``; none for a link whose
+    overlap's centre is unknown)."""
+    rate, yaw_rate = config.map_drift, math.radians(config.map_drift_yaw)
+    out = []
+    for (a, b, _, _), C in zip(links, link_covs(edges, links)):
+        e = edges[(a, b)]
+        drifts = C is not None and e.centre is not None and (rate > 0 or yaw_rate > 0)
+        out.append(C + drift.link_covariance(e.centre, e.T, rate, yaw_rate) if drifts else C)
+    return out
+
+
 def graph_poses(best: Dict[str, Placement], links: list, ref: str,
                 covs: Optional[List[Optional[np.ndarray]]] = None) -> Optional[Dict[str, np.ndarray]]:
     """Every placed robot's pose by all ``links`` at once (the reference held fixed), or None
@@ -140,7 +153,10 @@ def pin(config: MergeConfig, placements: Dict[str, Placement], edges: Links, ref
     """Set every placement's covariance and weak flag (in place): by all links among the placed
     robots when the pose graph placed them (``graph``), else along each robot's chain. Only
     links with a covariance count: a robot that only links without one reach (too few walls
-    to search, a link from an older state file) has no covariance and is weakly pinned."""
+    to search, a link from an older state file) has no covariance and is weakly pinned. Each
+    link's covariance has the maps' drift from their origins to its overlap added
+    (:func:`drift_covs`): what the placement's frame is known to, not how well the walls pin
+    the overlap (which weighs the links when they are solved)."""
     linked = {n: p for n, p in placements.items() if p.via != PRIOR}
     if graph:
         keys = [k for k in edges if k[0] in linked and k[1] in linked]
@@ -162,7 +178,7 @@ def pin(config: MergeConfig, placements: Dict[str, Placement], edges: Links, ref
     keys = [k for k in keys if k[0] in tied]
     links = [(a, b, edges[(a, b)].T, 1.0) for a, b in keys]
     covs = posegraph.covariances({n: p.T for n, p in linked.items() if n in tied}, links, ref,
-                                 link_covs(edges, links))
+                                 drift_covs(config, edges, links))
     for n, p in placements.items():
         if n == ref:
             p.cov, p.weak = None, False

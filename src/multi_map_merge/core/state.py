@@ -29,11 +29,13 @@ def link_dict(e: Edge) -> Dict[str, Any]:
     """A verified link as plain data (the state file's ``edges``): x, y, yaw (metres, radians:
     the pose of the child's map frame in the parent's), parent, child, inlier_ratio,
     agreement, inliers, matches, bend (metres its overlap's halves land apart, :mod:`bend`; 0
-    unknown), and how well the grids pin it (:func:`cov_fields`)."""
+    unknown), centre (x, y of its overlap's centre, metres in the parent's frame, :mod:`drift`;
+    None unknown), and how well the grids pin it (:func:`cov_fields`)."""
     x, y, yaw = xyyaw(e.T)
     return {'x': float(x), 'y': float(y), 'yaw': float(yaw), 'parent': e.parent, 'child': e.child,
             'inlier_ratio': float(e.inlier_ratio), 'agreement': float(e.agreement),
-            'inliers': int(e.inliers), 'matches': int(e.matches), 'bend': float(e.bend), **cov_fields(e.cov)}
+            'inliers': int(e.inliers), 'matches': int(e.matches), 'bend': float(e.bend),
+            'centre': None if e.centre is None else [float(v) for v in e.centre], **cov_fields(e.cov)}
 
 
 def link_from_dict(d: Dict[str, Any], stamp: float) -> Edge:
@@ -46,6 +48,8 @@ def link_from_dict(d: Dict[str, Any], stamp: float) -> Edge:
     if d.get('cov') is not None:   # files written before links had a covariance have none
         e.cov = np.array([float(v) for v in d['cov']]).reshape(3, 3)
     e.bend = float(d.get('bend', 0.0))   # (files written before bends were measured have none)
+    if d.get('centre') is not None:      # (nor before the drift's model error)
+        e.centre = (float(d['centre'][0]), float(d['centre'][1]))
     return e
 
 

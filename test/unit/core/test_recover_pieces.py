@@ -94,7 +94,10 @@ def test_merge_maps_cli(tmp_path, world, n):
     w, ps = pieces(world, n, 2)
     paths = write_pieces(tmp_path, ps)
     out, tf = str(tmp_path / 'merged.yaml'), str(tmp_path / 'T.yaml')
-    assert cli.main(paths + ['-o', out, '--transforms', tf]) == 0
+    # pieces of one ground truth do not drift from their frames' origins (core/drift.py)
+    cfg = tmp_path / 'no_drift.yaml'
+    cfg.write_text('map_drift: 0.0\nmap_drift_yaw: 0.0\n')
+    assert cli.main(paths + ['-o', out, '--transforms', tf, '--config', str(cfg)]) == 0
     check_report(yaml.safe_load(open(tf)), ps, ['robot%d' % i for i in range(n)])
     check_merged_is_the_world(load_map(out), w, ps, rects(w, n))
 
