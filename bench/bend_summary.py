@@ -114,6 +114,7 @@ def summarize(cases: Iterable[Dict[str, Any]]) -> Dict[str, Any]:
     weak = [r for r in recs if r['weak']]
     worst = max(recs, key=lambda r: r['err_m']) if recs else None
     fits = [r['fit'] for r in recs if r.get('fit') and r['fit'].get('d2') is not None]
+    links = [r for c in valid for r in c.get('links', []) if r.get('d2') is not None]
     return {
         'cases': len(valid), 'invalid': [{'name': c['name'], 'invalid': c['invalid']} for c in cases
                                          if c.get('invalid')],
@@ -131,6 +132,9 @@ def summarize(cases: Iterable[Dict[str, Any]]) -> Dict[str, Any]:
         'fit_with_cov': len(fits),
         'fit_in95': _share([f['d2'] <= CHI2_3 for f in fits]),
         'fit_in95_pos': _share([f['d2_pos'] <= CHI2_2 for f in fits]),
+        'links': len(links), 'links_in95': _share([r['in95'] for r in links]),
+        'links_fit_in95': _share([r['fit']['d2'] <= CHI2_3 for r in links
+                                  if r.get('fit') and r['fit'].get('d2') is not None]),
     }
 
 
@@ -157,6 +161,10 @@ def summary_lines(s: Dict[str, Any]) -> List[str]:
             % (OFF_WIDE[0], OFF_WIDE[1], s['off_wide'], s['off_wide_weak']),
             'flagged weak: %d, of them not off %d' % (s['weak'], s['weak_not_off']),
             'worst: %s m (2-sigma %s m) %s' % (metres(s['worst_m']), metres(s['worst_sigma2_m']), s['worst'] or '')]
+    if s.get('links'):
+        out.append('links (every kept link, its covariance as placements count it): %d; within the 95%% ellipse '
+                   '%s against the starts, %s against the best fits' % (s['links'], pct(s['links_in95']),
+                                                                        pct(s['links_fit_in95'])))
     if s['invalid']:
         out.append('INVALID cases: %d (%s)' % (len(s['invalid']), ', '.join(c['name'] for c in s['invalid'])))
     out.append(summary_line(s))

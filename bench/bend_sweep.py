@@ -274,7 +274,22 @@ class Case:
                                    pl.via, fit_true)
             rec['case'] = self.name
             recs.append(rec)
-        return {'reference': ref, 'placements': recs, 'unplaced': unplaced, 'estimate_s': round(est_s, 2),
+        # every kept link against the robots' starts, its covariance as placements count it
+        # (with each map's drift from its origin: placement.drift_covs)
+        from multi_map_merge.core.placement import drift_covs
+        kept = m.links()
+        keys = sorted(kept)
+        link_recs = []
+        for (a, b), C in zip(keys, drift_covs(m.config, kept, [(a, b, kept[(a, b)].T, 1.0) for a, b in keys])):
+            e = kept[(a, b)]
+            cov = None if C is None else np.asarray(C, float)
+            rec = placement_record('%s-%s' % (a, b), list(xyyaw(e.T)), relative(starts[a], starts[b]), cov,
+                                   None if cov is None else covariance.position_sigma(cov), False, a,
+                                   relative(fits[a], fits[b]) if fits.get(a) and fits.get(b) else None)
+            rec['case'] = self.name
+            link_recs.append(rec)
+        return {'reference': ref, 'placements': recs, 'links': link_recs, 'unplaced': unplaced,
+                'estimate_s': round(est_s, 2),
                 'fit_s': round(fit_s, 1),
                 'map_cells': {r: [int(g.width), int(g.height)] for r, g in maps.items()}}
 

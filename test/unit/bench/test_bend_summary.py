@@ -113,6 +113,17 @@ def test_summary_counts_and_line():
     m = LINE.match(lines[-1])
     assert m, lines[-1]
     assert m.groups() == ('4', '2', '33.3', '2', '1', '0.400', '0.100')
+    assert s['links'] == 0 and s['links_in95'] is None
+
+
+def test_summary_counts_links_against_starts_and_fits():
+    cov = np.diag([0.05 ** 2, 0.05 ** 2, math.radians(0.5) ** 2])
+    links = [placement_record('tb3_0-tb3_1', [1.02, 0, 0], [1, 0, 0], cov, 0.05, False, fit_true=[1.3, 0, 0]),
+             placement_record('tb3_1-tb3_2', [1.40, 0, 0], [1, 0, 0], cov, 0.05, False, fit_true=[1.4, 0, 0])]
+    s = summarize([_case('a-3r-s1', [], links=links)])
+    assert s['links'] == 2 and s['links_in95'] == 0.5 and s['links_fit_in95'] == 0.5
+    assert any(ln.startswith('links (every kept link') and '50.0% against the starts' in ln
+               for ln in summary_lines(s))
 
 
 def test_summary_of_nothing_has_no_numbers_made_up():
