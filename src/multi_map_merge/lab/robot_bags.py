@@ -2,6 +2,7 @@
 
     make_robot_bags -o house.bag [--world MAP.yaml] [--robots 4] [--seed 1]
     make_robot_bags -o intel.bag --carmen intel-corrected.log.gz --world intel_gt.yaml
+    make_robot_bags -o real.bag --sensors-only --lds02-driver   # scans as ROBOTIS's LDS-02 driver sends them
 
 Writes ``house.bag`` (the team: ``/tb3_N/scan``, ``/tb3_N/odom``, ``/tb3_N/map``, ``/tf``,
 ``/clock``), with a world map also ``house_single.bag`` (one robot exploring everything alone),
@@ -23,7 +24,7 @@ import yaml
 
 from ..core.mapio import MapFileError, load_map
 from ..core.transforms import wrap_angle
-from .simulate import SimConfig, read_carmen, simulate_carmen, simulate_world
+from .simulate import SimConfig, ld08_driver_scans, read_carmen, simulate_carmen, simulate_world
 
 # the world of ``--world``'s default, in the package (installed with it, see CMakeLists.txt)
 DEFAULT_WORLD = os.path.join('test', 'data', 'aws_small_house.yaml')
@@ -78,6 +79,10 @@ def main(argv: Optional[List[str]] = None) -> int:
     ap.add_argument('--wheel-heading', action='store_true',
                     help='odometry takes its heading from the wheels (a robot without an IMU), not from '
                          'the gyro as a Burger\'s does')
+    ap.add_argument('--lds02-driver', action='store_true',
+                    help='record the scans as ROBOTIS\'s LDS-02 driver for Noetic (ld08_driver) publishes them: '
+                         'each revolution of its own length, 0 for no point, range 0-100 m (scan_frame_relay '
+                         'makes them fit for gmapping); the truth and the SLAM model\'s maps are unchanged')
     a = ap.parse_args(argv)
     if a.robots < 1 or a.robots > 16:
         print('make_robot_bags: --robots must be 1..16', file=sys.stderr)
@@ -115,11 +120,16 @@ def main(argv: Optional[List[str]] = None) -> int:
         team = simulate_carmen(log, cfg)
     else:
         team, lone = simulate_world(world, cfg)
+    if a.lds02_driver:
+        shape_rng = np.random.default_rng(a.seed + 1000)
+        for run in team + ([lone] if lone is not None else []):
+            run.scans = ld08_driver_scans(run.scans, shape_rng, cfg.scan_rate)
     t_sim = time.time() - t0
     counts = write_robot_bag(base + '.bag', team, slam=not a.sensors_only)
     truth = {'world': os.path.relpath(world_path, os.path.dirname(os.path.abspath(base))),
              'source': ('carmen:' + os.path.basename(a.carmen)) if a.carmen else 'raycast',
-             'seed': a.seed, 'odometry_heading': 'wheels' if a.wheel_heading else 'gyro',
+             'seed': a.seed, 'scans': 'ld08_driver' if a.lds02_driver else 'fixed',
+             'odometry_heading': 'wheels' if a.wheel_heading else 'gyro',
              'slam_drift': None if a.sensors_only else a.slam_drift,
              'slam_model': not a.sensors_only, 'reference': team[0].name,
              'bag': os.path.basename(base + '.bag'),

@@ -112,6 +112,67 @@ class Scans:
     def angles(self) -> np.ndarray:
         return self.angle_min + self.angle_increment * np.arange(self.ranges.shape[1])
 
+    def scan(self, k: int) -> Tuple[float, float, np.ndarray]:
+        """Scan ``k`` as a LaserScan holds it: (angle_min, angle_increment, ranges)."""
+        return self.angle_min, self.angle_increment, self.ranges[k]
+
+
+@dataclass
+class DriverScans:
+    """Laser scans of one robot as ROBOTIS's LDS-02 driver for Noetic (``ld08_driver``)
+    publishes them (:func:`ld08_driver_scans`): one revolution each, of its own length, angles
+    from its first and last point, 0 where no point, ``range_min`` 0, ``range_max`` 100."""
+    steps: np.ndarray
+    scans: List[Tuple[float, float, np.ndarray]]   # per scan (angle_min, angle_increment, ranges float32)
+    range_min: float = 0.0
+    range_max: float = 100.0
+    offset: Tuple[float, float, float] = LDS02_OFFSET
+
+    def scan(self, k: int) -> Tuple[float, float, np.ndarray]:
+        return self.scans[k]
+
+
+# The LDS-02 samples at a fixed 2.3 kHz and turns at about 5 Hz ("Scan Frequency 5Hz or above",
+# "may vary by each product"; ROBOTIS e-Manual, LDS-02): about 460 points a revolution, their
+# count following the motor's speed from revolution to revolution.
+LDS02_SAMPLE_RATE = 2300.0
+
+
+def ld08_driver_scans(scans: Scans, rng: np.random.Generator, scan_rate: float = 5.0,
+                      speed_sigma: float = 0.02, angle_jitter: float = 0.3, dropout: float = 0.02) -> DriverScans:
+    """``scans`` (fixed beams, ``inf`` for no return) as ``ld08_driver`` would have published
+    them, written from what the driver is documented and seen to do, not from its code:
+
+    - each revolution turns at ``scan_rate`` Hz times (1 + N(0, ``speed_sigma``)), so it has
+      ``LDS02_SAMPLE_RATE / rate`` points: the length varies from scan to scan;
+    - the points' angles start anywhere within the first point's step and wander by
+      ``angle_jitter`` of a step (the sensor's encoder); each point is put in the bin of its angle
+      among as many bins as points between the first and the last point's angle
+      (``angle_min``/``angle_max`` from the data), a bin without a point reads 0 (two points in a
+      bin: the later one);
+    - a point reads the nearest fixed beam's range; no return (``inf``) and a random
+      ``dropout`` share of points read 0, as the sensor reports them;
+    - ``range_min`` 0, ``range_max`` 100 (m)."""
+    B = scans.ranges.shape[1]
+    beam_inc = scans.angle_increment
+    out = []
+    for k in range(len(scans.steps)):
+        rate = scan_rate * (1.0 + speed_sigma * rng.standard_normal())
+        n = max(2, int(round(LDS02_SAMPLE_RATE / max(rate, 1e-3))))
+        step = 2.0 * math.pi / n
+        angles = scans.angle_min + rng.uniform(0.0, step) + step * (np.arange(n) + angle_jitter * rng.uniform(
+            -0.5, 0.5, n))
+        beam = np.rint((angles - scans.angle_min) / beam_inc).astype(np.int64) % B
+        reading = scans.ranges[k][beam].astype(np.float64)
+        reading[~np.isfinite(reading) | (rng.random(n) < dropout)] = 0.0
+        a0, a1 = float(angles[0]), float(angles[-1])
+        inc = (a1 - a0) / (n - 1)
+        bins = np.clip(np.rint((angles - a0) / inc).astype(np.int64), 0, n - 1)
+        ranges = np.zeros(n, np.float32)
+        ranges[bins] = reading          # numpy: the last of equal indices wins
+        out.append((a0, inc, ranges))
+    return DriverScans(scans.steps, out, offset=scans.offset)
+
 
 @dataclass
 class RobotRun:
@@ -122,7 +183,7 @@ class RobotRun:
     true: np.ndarray                    # (K, 3)
     odom: np.ndarray                    # (K, 3)
     slam: np.ndarray                    # (K, 3)
-    scans: Scans
+    scans: Scans                        # or DriverScans (make_robot_bags --lds02-driver)
     maps: List[Tuple[float, Grid]] = field(default_factory=list)   # (time, map in tb3_k/map)
     start: Tuple[float, float, float] = (0.0, 0.0, 0.0)             # tb3_k/map in world
 

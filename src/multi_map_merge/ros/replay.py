@@ -26,7 +26,9 @@ BAG_EPOCH = 1_600_000_000.0   # bag time of a simulated run's t = 0 (fixed: bags
 def write_robot_bag(path: str, runs, clock_rate: float = 10.0, slam: bool = True) -> Dict[str, int]:
     """Write robots' runs (:class:`multi_map_merge.lab.simulate.RobotRun`) to a rosbag as real
     Turtlebot3s running gmapping record them, each robot under ``/<name>/``:
-    ``/<name>/scan`` (LaserScan, frame ``<name>/base_scan``), ``/<name>/odom`` (Odometry),
+    ``/<name>/scan`` (LaserScan, frame ``<name>/base_scan``; shaped as the run's scans are:
+    fixed beams, or ``ld08_driver``'s with :class:`multi_map_merge.lab.simulate.DriverScans`),
+    ``/<name>/odom`` (Odometry),
     ``/<name>/map`` (OccupancyGrid, frame ``<name>/map``), ``/tf`` (``<name>/odom ->
     <name>/base_footprint`` at the odometry rate, ``<name>/base_footprint -> <name>/base_scan``
     with every scan, gmapping's ``<name>/map -> <name>/odom``), and ``/clock``. With ``slam``
@@ -82,13 +84,13 @@ def write_robot_bag(path: str, runs, clock_rate: float = 10.0, slam: bool = True
             t = float(run.t[step])
             m = NumpyScan()
             m.header.stamp, m.header.frame_id = stamp(t), f_scan
-            m.angle_min = sc.angle_min
-            m.angle_increment = sc.angle_increment
-            m.angle_max = sc.angle_min + sc.angle_increment * (sc.ranges.shape[1] - 1)
+            amin, ainc, ranges = sc.scan(k)
+            m.angle_min, m.angle_increment = amin, ainc
+            m.angle_max = amin + ainc * (len(ranges) - 1)
             m.scan_time = 1.0 / 5.0
-            m.time_increment = m.scan_time / sc.ranges.shape[1]
+            m.time_increment = m.scan_time / len(ranges)
             m.range_min, m.range_max = sc.range_min, sc.range_max
-            m.ranges = np.ascontiguousarray(sc.ranges[k], np.float32)
+            m.ranges = np.ascontiguousarray(ranges, np.float32)
             m.intensities = np.zeros(0, np.float32)
             add(t, '/%s/scan' % n, m, 2)
         for t, grid in run.maps if slam else ():

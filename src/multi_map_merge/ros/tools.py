@@ -1,9 +1,8 @@
 """Small ROS tools and the helpers tests and the demo use: the map publisher (saved maps
-published as growing gmapping maps), waiting for a map / the master / a merge, tf lookups, and
-the TF relay of ``slam:=gmapping`` replays."""
+published as growing gmapping maps), waiting for a map / the master / a merge, tf lookups. (The
+relays, light enough for a robot, are in :mod:`multi_map_merge.ros.relays`.)"""
 from __future__ import annotations
 
-import fnmatch
 import sys
 import time
 from typing import Dict, List, Optional, Sequence
@@ -143,100 +142,6 @@ def lookup_transforms(parent: str, children: List[str], timeout: float) -> Dict[
     return out
 
 
-def run_tf_relay(src: str = '/tf_bag', dst: str = '/tf', drop_parent: str = '*/map',
-                 drop_child: str = '*/odom') -> None:
-    """Republish ``src`` (tf2_msgs/TFMessage) on ``dst`` without the transforms whose parent
-    and child match ``drop_parent`` and ``drop_child`` (fnmatch patterns): a recorded bag's own
-    SLAM ``map -> odom`` must not fight the live gmapping that replaces it."""
-    from tf2_msgs.msg import TFMessage
-    pub = rospy.Publisher(dst, TFMessage, queue_size=100)
-    dropped = set()
-
-    def on_tf(msg):
-        keep = []
-        for t in msg.transforms:
-            p, c = t.header.frame_id.lstrip('/'), t.child_frame_id.lstrip('/')
-            if fnmatch.fnmatch(p, drop_parent) and fnmatch.fnmatch(c, drop_child):
-                if (p, c) not in dropped:
-                    dropped.add((p, c))
-                    rospy.loginfo('tf_relay: dropping the recorded %s -> %s (live SLAM publishes it)', p, c)
-                continue
-            keep.append(t)
-        if keep:
-            pub.publish(TFMessage(keep))
-
-    rospy.Subscriber(src, TFMessage, on_tf, queue_size=100)
-    rospy.spin()
-
-
-def run_frame_prefix_relay(prefix: str, time_offset: float) -> None:
-    """One robot of a team made of single-robot bags (each names its frames ``odom``,
-    ``base_link``, ``laser`` on the one ``/tf``): republish ``scan_raw``, ``odom_raw`` and
-    ``tf_raw`` (relative to the node's namespace) as ``scan``, ``odom`` and ``/tf`` with every
-    frame id prefixed (``<prefix>/odom`` ...) and every stamp moved by ``time_offset`` seconds,
-    so that runs recorded minutes apart play at once under one ``/clock``."""
-    from nav_msgs.msg import Odometry
-    from sensor_msgs.msg import LaserScan
-    from tf2_msgs.msg import TFMessage
-    shift = rospy.Duration.from_sec(time_offset)
-
-    def frame(f: str) -> str:
-        return '%s/%s' % (prefix, f.lstrip('/')) if f else f
-
-    def moved(header) -> None:
-        header.stamp = header.stamp + shift
-        header.frame_id = frame(header.frame_id)
-
-    pubs = {}
-
-    def relay(name, msg_type, fix, out=None):
-        pubs[name] = rospy.Publisher(out or name, msg_type, queue_size=50)
-
-        def on_msg(msg):
-            fix(msg)
-            pubs[name].publish(msg)
-        rospy.Subscriber(name + '_raw', msg_type, on_msg, queue_size=50)
-
-    def fix_odom(msg):
-        moved(msg.header)
-        msg.child_frame_id = frame(msg.child_frame_id)
-
-    def fix_tf(msg):
-        for t in msg.transforms:
-            moved(t.header)
-            t.child_frame_id = frame(t.child_frame_id)
-
-    relay('scan', LaserScan, lambda m: moved(m.header))
-    relay('odom', Odometry, fix_odom)
-    relay('tf', TFMessage, fix_tf, '/tf')
-    rospy.loginfo('frame_prefix_relay: frames under %s/, stamps %+.3f s', prefix, time_offset)
-    rospy.spin()
-
-
-def run_scan_frame_relay(frame_id: str, src: str = 'scan', dst: str = 'scan_framed') -> None:
-    """Republish a robot's ``src`` (sensor_msgs/LaserScan, relative to the node's namespace)
-    on ``dst`` with ``header.frame_id`` set to ``frame_id``. ROBOTIS's ``ld08_driver`` (the
-    LDS-02's, noetic branch) stamps every scan ``base_scan`` whatever ``frame_id`` it is given,
-    so a robot in a team cannot have its scans in ``<robot>/base_scan`` where its
-    robot_state_publisher puts the laser; gmapping then finds no laser pose. A scan already in
-    ``frame_id`` passes unchanged."""
-    from sensor_msgs.msg import LaserScan
-    pub = rospy.Publisher(dst, LaserScan, queue_size=5)
-    seen = set()
-
-    def on_scan(msg):
-        got = msg.header.frame_id
-        if got != frame_id and got not in seen:
-            seen.add(got)
-            rospy.loginfo('scan_frame_relay: scans of %s in frame "%s" republished on %s in "%s"',
-                          rospy.resolve_name(src), got, rospy.resolve_name(dst), frame_id)
-        msg.header.frame_id = frame_id
-        pub.publish(msg)
-
-    rospy.Subscriber(src, LaserScan, on_scan, queue_size=5)
-    rospy.spin()
-
-
 # ---------------------------------------------------------------- the scripts
 def publish_maps_main(argv: Optional[List[str]] = None) -> int:
     """``publish_maps tb3_0:A.yaml tb3_1:B.yaml ... [--steps 4] [--period 2]``: publish saved
@@ -276,43 +181,4 @@ def save_map_main(argv: Optional[List[str]] = None) -> int:
         return 1
     pgm, yml = save_map(grid, a.file + '.yaml')
     print('saved %s and %s (%dx%d cells)' % (pgm, yml, grid.width, grid.height))
-    return 0
-
-
-def tf_relay_main() -> int:
-    """``tf_relay``: a bag's /tf without its recorded SLAM map -> odom (slam:=gmapping replays).
-    Parameters: ~src (/tf_bag), ~dst (/tf), ~drop_parent (*/map), ~drop_child (*/odom)."""
-    rospy.init_node('tf_relay')
-    run_tf_relay(rospy.get_param('~src', '/tf_bag'), rospy.get_param('~dst', '/tf'),
-                 rospy.get_param('~drop_parent', '*/map'), rospy.get_param('~drop_child', '*/odom'))
-    return 0
-
-
-def frame_prefix_relay_main() -> int:
-    """``frame_prefix_relay``: one robot of a team of single-robot bags: its scan, odom and tf
-    (played into the namespace as scan_raw, odom_raw, tf_raw) republished with frames prefixed
-    and stamps moved onto the team's clock. Parameters: ~prefix (default: the namespace), ~bag
-    and ~clock_bag (the stamps move by start(clock_bag) - start(bag)) or ~time_offset (s)."""
-    from .replay import bag_start
-    rospy.init_node('frame_prefix_relay')
-    prefix = rospy.get_param('~prefix', rospy.get_namespace().strip('/'))
-    offset = float(rospy.get_param('~time_offset', 0.0))
-    bag, clock_bag = rospy.get_param('~bag', ''), rospy.get_param('~clock_bag', '')
-    if bag and clock_bag:
-        offset = bag_start(clock_bag) - bag_start(bag)
-    run_frame_prefix_relay(prefix, offset)
-    return 0
-
-
-def scan_frame_relay_main() -> int:
-    """``scan_frame_relay``: a robot's ``scan`` republished on ``scan_framed`` in its own laser
-    frame. Parameters: ~frame_id (default ``<namespace>/base_scan``), ~src (scan), ~dst
-    (scan_framed)."""
-    rospy.init_node('scan_frame_relay')
-    ns = rospy.get_namespace().strip('/')
-    frame_id = str(rospy.get_param('~frame_id', '%s/base_scan' % ns if ns else 'base_scan')).strip()
-    if not frame_id:
-        rospy.logerr('scan_frame_relay: ~frame_id is empty; using base_scan')
-        frame_id = 'base_scan'
-    run_scan_frame_relay(frame_id, rospy.get_param('~src', 'scan'), rospy.get_param('~dst', 'scan_framed'))
     return 0
