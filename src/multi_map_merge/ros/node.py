@@ -2,7 +2,6 @@
 merged map, the TF of every placed robot and /diagnostics. See the README's ROS API."""
 from __future__ import annotations
 
-import fnmatch
 import functools
 import math
 import sys
@@ -39,7 +38,7 @@ from .convert import (
 )
 from .diagnostics import node_diagnostic, robot_diagnostic, stale_maps
 from .markers import markers_key, markers_msg
-from .params import check_library_param, reference_message, resolve_params
+from .params import check_library_param, reference_message, resolve_params, robot_of_map_topic
 
 
 class _Updater(diagnostic_updater.Updater):
@@ -197,13 +196,11 @@ class MergeNode:
             return
         found = []
         for topic, ttype in topics:
-            parts = topic.strip('/').split('/')
-            if len(parts) != 2 or parts[1] != self.cfg.map_topic or ttype != 'nav_msgs/OccupancyGrid':
-                continue
             if topic == self._map_pub.resolved_name:
                 continue   # our own merged map (~merged_map_topic set to /<robot>/<map_topic>)
-            if fnmatch.fnmatch(parts[0], self.cfg.robot_namespace_pattern):
-                found.append(parts[0])
+            robot = robot_of_map_topic(topic, ttype, self.cfg.map_topic, self.cfg.robot_namespace_pattern)
+            if robot:
+                found.append(robot)
         for robot in found:
             self._subscribe(robot)
 
