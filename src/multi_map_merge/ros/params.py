@@ -120,7 +120,7 @@ def _text(v: Any, what: str) -> str:
 
 
 def _topic_element(v: Any) -> str:
-    """~map_topic: discovery looks for topics of exactly two elements, /<robot>/<map_topic>."""
+    """~map_topic: discovery looks for topics /<robot>/<map_topic>, <robot> any namespace (nested too)."""
     what = ("one topic name under each robot's namespace, without '/' (discovery looks for "
             "/<robot>/<map_topic>), e.g. map")
     s = _text(v, what)
