@@ -8,9 +8,11 @@ parameter is checked to be unchanged), then started with roslaunch. Its paramete
 m-explore's (robot_map_topic, robot_namespace "", world_frame "world", merging_rate 0.5,
 discovery_rate 0.05, estimation_rate 0.1, estimation_confidence, known_init_poses false) and its
 node lives in the namespace map_merge, as m-explore's does. Three robots' maps (pieces of the
-Intel map at known poses) are published on /tb3_N/map; the merged map must come out where
-m-explore's would (/map_merge/map, frame world) and every robot be placed by the TF
-world -> tb3_N/map at its true pose. The node's log names each m-explore parameter it read and
+Intel map at known poses) are published on /tb3_0/map, /tb3_1/map and, in a nested namespace,
+/team/tb3_2/map (m-explore finds a robot's map topic under any namespace); the merged map must
+come out where m-explore's would (/map_merge/map, frame world) and every robot be placed by the
+TF world -> <robot>/map (team/tb3_2/map for the nested one, looked up through tf2) at its true
+pose. The node's log names each m-explore parameter it read and
 warns only about estimation_confidence (which has no equivalent here).
 """
 import math
@@ -30,7 +32,7 @@ from multi_map_merge.core.mapio import load_map
 from multi_map_merge.core.transforms import inverse, pose_distance
 
 PKG = 'multi_map_merge'
-ROBOTS = ['tb3_0', 'tb3_1', 'tb3_2']
+ROBOTS = ['tb3_0', 'tb3_1', 'team/tb3_2']   # the last nested (after tb3_0 by name: tb3_0 stays the reference)
 POSES = [(1.5, -1.0, math.radians(20.0)), (-3.0, 2.0, math.radians(180.0)), (4.0, 3.5, math.radians(-95.0))]
 MEXPLORE = os.path.join(DATA, 'mexplore', 'map_merge.launch.xml')   # renamed: see ATTRIBUTION.md
 

@@ -39,7 +39,11 @@ from .convert import (
 )
 from .diagnostics import node_diagnostic, robot_diagnostic, stale_maps
 from .markers import markers_key, markers_msg
-from .params import check_library_param, reference_message, resolve_params
+from .params import check_library_param, reference_message, resolve_params, robot_of_map_topic
+from .setup_check import foreign_robot_map_tf, foreign_tf_warning, rsp_version_warning
+
+#: seconds after start during which /tf is read for other senders of the node's transforms
+TF_CHECK_SECONDS = 60.0
 
 
 class _Updater(diagnostic_updater.Updater):
@@ -168,6 +172,7 @@ class MergeNode:
             self._subscribe(r.strip('/'))
         self._ready = None   # the latest merged grid, composited off the publishing path
         self._sent = None    # (grid, placements) of the last /map sent
+        self._check_setup()
         self._discover(None)
         rospy.Timer(rospy.Duration(1.0 / config.discovery_rate), self._discover)
         rospy.Timer(rospy.Duration(1.0 / config.merge_rate), self._publish_map)
@@ -185,6 +190,48 @@ class MergeNode:
                       self.merger.reference or '(the first by name among the robots with a map, until '
                       'another robot is merged with it)', config.merged_map_frame)
 
+    # -- what the set-up needs (ros/setup_check.py)
+    def _check_setup(self) -> None:
+        """At start: one warning when robot_state_publisher has no tf_prefix (older than 1.15.2),
+        and one per frame when another node broadcasts merged frame -> a robot's map frame, the
+        TF this node publishes (its sender is the messages' callerid, tf's authority). /tf_static
+        is watched for the node's life (latched, seldom sent); /tf for TF_CHECK_SECONDS after
+        start only, as every robot's TF at 50 Hz would cost this Python node a core."""
+        try:
+            import rospkg
+            version = rospkg.RosPack().get_manifest('robot_state_publisher').version
+        except Exception:   # not installed here (it runs on the robots): nothing to say
+            version = None
+        line = rsp_version_warning(version)
+        if line:
+            rospy.logwarn('multi_map_merge: %s', line)
+        self._tf_warned: set = set()
+        rospy.Subscriber('/tf_static', TFMessage, self._on_foreign_tf, callback_args=True, queue_size=10)
+        sub = rospy.Subscriber('/tf', TFMessage, self._on_foreign_tf, callback_args=False, queue_size=100)
+        rospy.Timer(rospy.Duration(TF_CHECK_SECONDS), lambda _e: sub.unregister(), oneshot=True)
+
+    def _is_robot_map_frame(self, frame: str) -> bool:
+        if frame in self.merger.frames().values():
+            return True
+        ns, _, last = frame.rpartition('/')
+        if last != 'map' or not ns:
+            return False
+        if self.cfg.robots:
+            return ns in {r.strip('/') for r in self.cfg.robots}
+        return fnmatch.fnmatchcase(ns, self.cfg.robot_namespace_pattern)
+
+    def _on_foreign_tf(self, msg, static: bool) -> None:
+        authority = getattr(msg, '_connection_header', {}).get('callerid', '')
+        for t in msg.transforms:
+            parent, child = t.header.frame_id, t.child_frame_id
+            key = (parent.lstrip('/'), child.lstrip('/'), authority)
+            if key in self._tf_warned or not foreign_robot_map_tf(
+                    parent, child, authority, self.cfg.merged_map_frame, rospy.get_name(),
+                    self._is_robot_map_frame):
+                continue
+            self._tf_warned.add(key)
+            rospy.logwarn('multi_map_merge: %s', foreign_tf_warning(parent, child, authority, static))
+
     # -- inputs
     def _discover(self, _event) -> None:
         self._watch()
@@ -197,13 +244,11 @@ class MergeNode:
             return
         found = []
         for topic, ttype in topics:
-            parts = topic.strip('/').split('/')
-            if len(parts) != 2 or parts[1] != self.cfg.map_topic or ttype != 'nav_msgs/OccupancyGrid':
-                continue
             if topic == self._map_pub.resolved_name:
                 continue   # our own merged map (~merged_map_topic set to /<robot>/<map_topic>)
-            if fnmatch.fnmatch(parts[0], self.cfg.robot_namespace_pattern):
-                found.append(parts[0])
+            robot = robot_of_map_topic(topic, ttype, self.cfg.map_topic, self.cfg.robot_namespace_pattern)
+            if robot:
+                found.append(robot)
         for robot in found:
             self._subscribe(robot)
 

@@ -120,7 +120,7 @@ def _text(v: Any, what: str) -> str:
 
 
 def _topic_element(v: Any) -> str:
-    """~map_topic: discovery looks for topics of exactly two elements, /<robot>/<map_topic>."""
+    """~map_topic: discovery looks for topics /<robot>/<map_topic>, <robot> any namespace (nested too)."""
     what = ("one topic name under each robot's namespace, without '/' (discovery looks for "
             "/<robot>/<map_topic>), e.g. map")
     s = _text(v, what)
@@ -156,12 +156,27 @@ def _frame_id(v: Any) -> str:
 
 
 def _pattern(v: Any) -> str:
-    """~robot_namespace_pattern: matched against the single element <robot> of /<robot>/<map_topic>."""
-    what = "a non-empty fnmatch pattern of one namespace element, without '/', e.g. tb3_*"
+    """~robot_namespace_pattern: matched against a robot's whole namespace (``robots/r1`` of
+    ``/robots/r1/map``); ``*`` matches ``/`` too, as in fnmatch."""
+    what = "a non-empty fnmatch pattern of a robot's namespace, e.g. tb3_* or robots/*"
     s = _text(v, what).strip('/')
-    if not s or '/' in s or any(ch.isspace() for ch in s):
+    if not s or any(ch.isspace() for ch in s) or '//' in s:
         raise _Invalid(what)
     return s
+
+
+def robot_of_map_topic(topic: str, ttype: str, map_topic: str, pattern: str) -> Optional[str]:
+    """The robot whose map ``topic`` is, as m-explore's map_merge finds it (``isRobotMapTopic``,
+    ``robotNameFromTopic``): an OccupancyGrid topic named ``<map_topic>`` under any namespace,
+    the robot being that namespace (``/robots/r1/map`` -> ``robots/r1``); None when the topic is
+    no robot's map or its namespace does not match ``pattern`` (fnmatch over the whole namespace;
+    m-explore matches its ``robot_namespace`` anywhere in the topic name)."""
+    if ttype != 'nav_msgs/OccupancyGrid':
+        return None
+    ns, _, name = topic.strip('/').rpartition('/')
+    if name != map_topic or not ns:
+        return None   # /map itself has no robot namespace
+    return ns if fnmatch.fnmatchcase(ns, pattern) else None
 
 
 def _robot_name(v: Any) -> str:
@@ -225,7 +240,7 @@ _PERCENT = _float(0.0, 100.0)
 
 #: every MergeConfig field: (converter, what it accepts); a unit test checks none is missing
 RULES: Dict[str, Tuple[Callable[[Any], Any], str]] = {
-    'robot_namespace_pattern': (_pattern, 'an fnmatch pattern of one namespace element'),
+    'robot_namespace_pattern': (_pattern, "an fnmatch pattern of a robot's namespace"),
     'robots': (_string_list, 'a list of robot namespaces'),
     'map_topic': (_topic_element, 'one topic name under the robot namespace'),
     'map_updates_topic': (_relative_topic, 'a relative topic name'),

@@ -2,9 +2,13 @@
 the robots it is given, from ``rviz/multi_map_merge.rviz`` as the template, and starts rviz on
 it. Per robot it keeps one map display (``<robot> map`` on ``/<robot>/map``, as the template's
 first robot display) and one "2D Pose Estimate" tool publishing on
-``/<robot>/map_merge/prior`` (the node reads it as that robot's prior, see the README). Every
-other part of the template (the merged map, TF, the view, the window layout under ``Window
-Geometry``) is kept as it is.
+``/<robot>/map_merge/prior`` (the node reads it as that robot's prior, see the README) and one
+"2D Nav Goal" tool publishing on ``/<robot>/move_base_simple/goal`` (each robot's move_base runs
+in its namespace). The merger's topics follow its name (``--node``, ``/map_merge`` as
+``map_merge.launch`` starts it; m-explore's launch file starts it as ``/map_merge/map_merge``):
+the markers display on ``<node>/markers``, the merged map display on ``~merged_map_topic``
+resolved in the node's namespace (``map`` -> ``/map``, ``/map_merge/map``). Every other part of
+the template (TF, the view, the window layout under ``Window Geometry``) is kept as it is.
 
 rviz 1 names a tool by its class alone (``Tool::load`` reads no ``Name``), so every robot's tool
 would say "2D Pose Estimate". Where rviz's Python bindings are installed (``python3-rviz`` on
@@ -19,11 +23,13 @@ import copy
 import os
 import re
 import sys
-from typing import List, Optional
+from typing import Dict, List, Optional
 
 import yaml
 
 PRIOR_TOPIC = '/%s/map_merge/prior'
+GOAL_TOPIC = '/%s/move_base_simple/goal'
+_GLOBAL_NAME = re.compile(r'^(/[A-Za-z][A-Za-z0-9_]*)+$')
 _ROBOT_MAP = re.compile(r'^/([^/]+)/map$')
 
 
@@ -35,8 +41,29 @@ def _prior_tool(t: dict) -> bool:
     return t.get('Class') == 'rviz/SetInitialPose' and str(t.get('Topic', '')).endswith('/map_merge/prior')
 
 
-def robots_rviz_config(template: str, robots: List[str]) -> str:
-    """The text of an rviz config for ``robots`` made from the ``template`` config's text."""
+def _goal_tool(t: dict) -> bool:
+    return t.get('Class') == 'rviz/SetGoal' and str(t.get('Topic', '')).endswith('/move_base_simple/goal')
+
+
+def node_topics(node: str, merged_map_topic: str = 'map') -> Dict[str, str]:
+    """The merger's topics rviz shows, for the node's global name ``node``: its markers
+    (``~markers``) and its merged map (``merged_map_topic``, relative to its namespace unless
+    global)."""
+    node = '/' + node.strip('/')
+    if not _GLOBAL_NAME.match(node):
+        raise ValueError('not a valid node name: %s' % node)
+    ns = node.rsplit('/', 1)[0]
+    merged = merged_map_topic if merged_map_topic.startswith('/') else '%s/%s' % (ns, merged_map_topic)
+    if not _GLOBAL_NAME.match(merged):
+        raise ValueError('not a valid topic name: %s' % merged_map_topic)
+    return {'markers': node + '/markers', 'map': merged}
+
+
+def robots_rviz_config(template: str, robots: List[str], node: str = '/map_merge',
+                       merged_map_topic: str = 'map') -> str:
+    """The text of an rviz config for ``robots`` made from the ``template`` config's text, the
+    merger's topics those of the node named ``node`` (:func:`node_topics`)."""
+    topics = node_topics(node, merged_map_topic)
     names = [r.strip('/') for r in robots if r.strip('/')]
     if not names:
         raise ValueError('no robot names given')
@@ -50,6 +77,15 @@ def robots_rviz_config(template: str, robots: List[str]) -> str:
                                     'a per-robot map display (rviz/Map on /<robot>/map)')
     vm['Tools'] = _one_per_robot(vm['Tools'], _prior_tool, names, {'Topic': PRIOR_TOPIC},
                                  'an rviz/SetInitialPose tool on /<robot>/map_merge/prior')
+    if any(_goal_tool(t) for t in vm['Tools']):   # (a template of one's own may have none)
+        vm['Tools'] = _one_per_robot(vm['Tools'], _goal_tool, names, {'Topic': GOAL_TOPIC},
+                                     'an rviz/SetGoal tool on /<robot>/move_base_simple/goal')
+    robot_maps = {'/%s/map' % r for r in names}
+    for d in vm['Displays']:
+        if d.get('Class') == 'rviz/MarkerArray' and str(d.get('Marker Topic', '')).endswith('/markers'):
+            d['Marker Topic'] = topics['markers']
+        elif d.get('Class') == 'rviz/Map' and d.get('Topic') not in robot_maps:
+            d['Topic'] = topics['map']   # the merged map (every other map display is a robot's)
     return yaml.safe_dump(cfg, sort_keys=False, default_flow_style=False, width=1 << 20)
 
 
@@ -85,6 +121,11 @@ def robots_rviz_main(argv: Optional[List[str]] = None) -> int:
     ros_args = [a for a in argv if ':=' in a]
     ap = argparse.ArgumentParser(prog='robots_rviz', description=robots_rviz_main.__doc__.split('\n')[0])
     ap.add_argument('--robots', required=True, help='robot namespaces, separated by spaces')
+    ap.add_argument('--node', default='/map_merge', help='the merger node\'s name, whose ~markers '
+                    'and merged map rviz shows (default /map_merge; m-explore\'s launch file: '
+                    '/map_merge/map_merge)')
+    ap.add_argument('--merged-map-topic', default='map', help='the node\'s ~merged_map_topic '
+                    '(default map, in the node\'s namespace)')
     ap.add_argument('--template', default='', help='rviz config to start from (default: the package\'s)')
     ap.add_argument('--output', default='', help='where to write the config (default: '
                     '$ROS_HOME/multi_map_merge_<robots>.rviz)')
@@ -96,7 +137,7 @@ def robots_rviz_main(argv: Optional[List[str]] = None) -> int:
     template = a.template or default_template()
     try:
         with open(template) as f:
-            text = robots_rviz_config(f.read(), robots)
+            text = robots_rviz_config(f.read(), robots, a.node, a.merged_map_topic)
     except (OSError, ValueError, KeyError, yaml.YAMLError) as e:
         print('robots_rviz: %s: %s' % (template, e), file=sys.stderr)
         return 2
@@ -138,26 +179,30 @@ def run_rviz(config: str, robots: List[str], print_tools: bool = False) -> int:
     frame.initialize(config)
     frame.show()
 
-    def rename(priors):
-        old = priors[0].getName()
+    def rename(tools, label, tip):
+        old = tools[0].getName()
         actions = [act for bar in frame.findChildren(QToolBar) for act in bar.actions() if act.text() == old]
-        for robot, tool in zip(robots, priors):
-            tool.setName('%s prior' % robot)
+        for robot, tool in zip(robots, tools):
+            tool.setName(label % robot)
         if len(actions) == len(robots):     # the toolbar's buttons, in the tools' order
             for robot, act in zip(robots, actions):
-                act.setText('%s prior' % robot)
-                act.setToolTip('where %s started: its map frame in the merged frame (/%s)'
-                               % (robot, PRIOR_TOPIC % robot))
+                act.setText(label % robot)
+                act.setToolTip(tip % (robot, robot))
 
     def label():
         tm = frame.getManager().getToolManager()
         tools = [tm.getTool(i) for i in range(tm.numTools())]
-        priors = [t for t in tools if t.getClassId() == 'rviz/SetInitialPose']
-        if len(priors) != len(robots):
-            print('robots_rviz: %d prior tools for %d robots: names left as they are'
-                  % (len(priors), len(robots)), file=sys.stderr)
-        else:
-            rename(priors)
+        for cls, label, tip in (
+                ('rviz/SetInitialPose', '%s prior', 'where %s started: its map frame in the merged frame '
+                 '(' + PRIOR_TOPIC + ')'),
+                ('rviz/SetGoal', '%s goal', 'a goal for %s\'s move_base (' + GOAL_TOPIC + ')')):
+            mine = [t for t in tools if t.getClassId() == cls]
+            if len(mine) != len(robots):
+                if mine or cls == 'rviz/SetInitialPose':
+                    print('robots_rviz: %d %s tools for %d robots: names left as they are'
+                          % (len(mine), cls, len(robots)), file=sys.stderr)
+            else:
+                rename(mine, label, tip)
         if print_tools:     # also when nothing was renamed: the caller sees what rviz shows
             names = [act.text() for bar in frame.findChildren(QToolBar) for act in bar.actions() if act.text()]
             print('robots_rviz tools: %s' % ' | '.join(names))

@@ -18,6 +18,7 @@ from multi_map_merge.ros.params import (
     RULES,
     check_library_param,
     resolve_params,
+    robot_of_map_topic,
 )
 
 
@@ -305,7 +306,7 @@ def test_a_good_diagnostic_period_is_taken():
     ('map_updates_topic', '/tb3_0/map_updates'), ('map_updates_topic', 'map updates'),
     ('merged_map_topic', 'merged map'), ('merged_map_topic', '~map'), ('merged_map_topic', 'a//b'),
     ('merged_map_frame', '/map'), ('merged_map_frame', 'my map'),
-    ('robot_namespace_pattern', 'robots/tb3_*'), ('robot_namespace_pattern', 'tb3 *'),
+    ('robot_namespace_pattern', 'robots//tb3_*'), ('robot_namespace_pattern', 'tb3 *'),
     ('robots', ['tb3_0', 'tb3 1']), ('robots', ['0tb3']), ('robots', {'tb3_0': 1}),
     ('reference_robot', 'tb3 0'), ('reference_robot', 5),
     ('stale_map_timeout', -1), ('stale_map_timeout', 'long'),
@@ -360,3 +361,26 @@ def test_the_reference_line_says_which_robot_why_and_how_to_choose_it():
     line = reference_message(ReferenceChoice('tb3_1', True, REF_FIRST_BY_NAME, ('tb3_0', 'tb3_1', 'tb3_2')))
     assert line.startswith('reference robot tb3_1, fixed now that another robot is merged with it')
     assert line.endswith('set ~reference_robot: tb3_1 for the same merged frame in every run')
+
+
+@pytest.mark.parametrize('topic,ttype,map_topic,pattern,robot', [
+    ('/tb3_1/map', 'nav_msgs/OccupancyGrid', 'map', 'tb3_*', 'tb3_1'),
+    # nested namespaces, as m-explore's map_merge finds them: the robot is the whole namespace
+    ('/robots/r1/map', 'nav_msgs/OccupancyGrid', 'map', '*', 'robots/r1'),
+    ('/robots/r1/map', 'nav_msgs/OccupancyGrid', 'map', 'robots/*', 'robots/r1'),
+    ('/robots/r1/map', 'nav_msgs/OccupancyGrid', 'map', 'robots*', 'robots/r1'),   # robot_namespace: robots
+    ('/a/b/c/gmap', 'nav_msgs/OccupancyGrid', 'gmap', '*', 'a/b/c'),
+    ('/robots/r1/map', 'nav_msgs/OccupancyGrid', 'map', 'tb3_*', None),          # not matching the pattern
+    ('/tb3_1/map', 'nav_msgs/OccupancyGrid', 'gmap', 'tb3_*', None),               # another map topic
+    ('/tb3_1/map_updates', 'nav_msgs/OccupancyGrid', 'map', 'tb3_*', None),
+    ('/tb3_1/map', 'map_msgs/OccupancyGridUpdate', 'map', 'tb3_*', None),         # not a grid
+    ('/map', 'nav_msgs/OccupancyGrid', 'map', '*', None),                         # no namespace
+    ('/tb3_1/mapx', 'nav_msgs/OccupancyGrid', 'map', '*', None),
+])
+def test_robot_of_map_topic_as_mexplore_matches_topics(topic, ttype, map_topic, pattern, robot):
+    assert robot_of_map_topic(topic, ttype, map_topic, pattern) == robot
+
+
+def test_a_nested_pattern_is_taken():
+    res = resolve_params({'robot_namespace_pattern': '/robots/*'})
+    assert not res.errors and res.config.robot_namespace_pattern == 'robots/*'
