@@ -14,7 +14,6 @@ executable is started on the config (the tools keep rviz's name, in the robots' 
 showing its topic in Tool Properties)."""
 from __future__ import annotations
 
-import argparse
 import copy
 import os
 import re
@@ -22,6 +21,8 @@ import sys
 from typing import List, Optional
 
 import yaml
+
+from ..core.cli import parser
 
 PRIOR_TOPIC = '/%s/map_merge/prior'
 _ROBOT_MAP = re.compile(r'^/([^/]+)/map$')
@@ -83,7 +84,7 @@ def robots_rviz_main(argv: Optional[List[str]] = None) -> int:
     if argv is None:
         argv = sys.argv[1:]
     ros_args = [a for a in argv if ':=' in a]
-    ap = argparse.ArgumentParser(prog='robots_rviz', description=robots_rviz_main.__doc__.split('\n')[0])
+    ap = parser('robots_rviz', robots_rviz_main.__doc__)
     ap.add_argument('--robots', required=True, help='robot namespaces, separated by spaces')
     ap.add_argument('--template', default='', help='rviz config to start from (default: the package\'s)')
     ap.add_argument('--output', default='', help='where to write the config (default: '
