@@ -12,7 +12,6 @@ Exit status: 0 merged (even if some maps could not be placed: they are listed wi
 """
 from __future__ import annotations
 
-import argparse
 import math
 import os
 import sys
@@ -20,6 +19,7 @@ from typing import Dict, List, Optional
 
 import yaml
 
+from .cli import parser
 from .config import MergeConfig
 from .mapio import MapFileError, load_map, save_map
 from .merger import MapMerger
@@ -65,7 +65,7 @@ def _rounded(key: str, v):
 
 
 def main(argv: Optional[List[str]] = None) -> int:
-    ap = argparse.ArgumentParser(prog='merge_maps', description=__doc__.split('\n\n')[0])
+    ap = parser('merge_maps', __doc__)
     ap.add_argument('maps', nargs='+', help='map_server .yaml files, one per robot')
     ap.add_argument('-o', '--output', required=True, help='merged map .yaml to write (+ .pgm)')
     ap.add_argument('--transforms', metavar='T.yaml',

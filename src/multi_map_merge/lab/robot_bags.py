@@ -13,7 +13,6 @@ read by ``evaluate_map --truth``. Scans are ray cast in the world map (LDS-02), 
 """
 from __future__ import annotations
 
-import argparse
 import os
 import sys
 import time
@@ -22,6 +21,7 @@ from typing import List, Optional
 import numpy as np
 import yaml
 
+from ..core.cli import parser
 from ..core.mapio import MapFileError, load_map
 from ..core.transforms import wrap_angle
 from .simulate import SimConfig, ld08_driver_scans, read_carmen, simulate_carmen, simulate_world
@@ -62,7 +62,7 @@ def _run_info(run) -> dict:
 
 
 def main(argv: Optional[List[str]] = None) -> int:
-    ap = argparse.ArgumentParser(prog='make_robot_bags', description=__doc__.split('\n\n')[0])
+    ap = parser('make_robot_bags', __doc__)
     ap.add_argument('-o', '--output', required=True,
                     help='bag to write (NAME.bag; also NAME_single.bag, NAME.truth.yaml)')
     ap.add_argument('--world', help='ground-truth map_server .yaml (default: the shipped AWS small house)')

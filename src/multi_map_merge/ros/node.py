@@ -8,7 +8,7 @@ import math
 import sys
 import threading
 import time
-from typing import Dict, Optional
+from typing import Dict, List, Optional
 
 import diagnostic_updater
 import numpy as np
@@ -666,7 +666,22 @@ def workers_before_init(argv=None) -> int:
     return resolve_params({'workers': value}).config.workers
 
 
-def run_merge_node() -> None:
+def run_merge_node(argv: Optional[List[str]] = None) -> None:
+    """``map_merge_node [ROS remappings]``: the live merger. It discovers the robots' maps
+    (/<robot>/map matching ~robot_namespace_pattern, or the robots of ~robots), places every robot's
+    map in the reference robot's frame and publishes the merged /map (~merged_map_topic), the TF
+    map -> <robot>/map of every merged robot, /diagnostics and rviz markers. It is configured by
+    ROS parameters, not options: the private parameters (~estimation_rate, ~reference_robot,
+    ~initial_poses, ...; m-explore's names are read too) and its topics, services and TF are
+    listed in the README's tables (config/map_merge.yaml holds the defaults, and
+    `roslaunch multi_map_merge map_merge.launch` loads it). Usually started by a launch file:
+
+        roslaunch multi_map_merge map_merge.launch [robots:="tb3_0 tb3_1"] [reference_robot:=tb3_0]
+        rosrun multi_map_merge map_merge_node _estimation_rate:=0.5 __name:=map_merge"""
+    from ..core.cli import parser
+    args = rospy.myargv(sys.argv if argv is None else argv)[1:]
+    # before the workers fork and rospy starts: --help starts nothing
+    parser('map_merge_node', run_merge_node.__doc__).parse_args(args)
     # the estimation workers forked before rospy starts its threads: they share the node's
     # memory (core/workers.py)
     start_pool(workers_before_init())

@@ -242,8 +242,8 @@ def record_replay_main(argv: Optional[List[str]] = None) -> int:
     made: DIR/merged.{yaml,pgm} (the last /map) and DIR/record.yaml (each robot's trajectory in
     the merged frame through the merged TF, its map frame's pose, its /diagnostics). Stops when
     /clock has stood still for --idle seconds (the bag ended)."""
-    import argparse
-    ap = argparse.ArgumentParser(prog='record_replay', description=record_replay_main.__doc__.split('\n')[0])
+    from ..core.cli import parser
+    ap = parser('record_replay', record_replay_main.__doc__)
     ap.add_argument('robots', nargs='+')
     ap.add_argument('-o', '--output', required=True)
     ap.add_argument('--idle', type=float, default=4.0, help='wall seconds of a still /clock that end the recording')

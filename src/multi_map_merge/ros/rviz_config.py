@@ -18,7 +18,6 @@ executable is started on the config (the tools keep rviz's name, in the robots' 
 showing its topic in Tool Properties)."""
 from __future__ import annotations
 
-import argparse
 import copy
 import os
 import re
@@ -26,6 +25,8 @@ import sys
 from typing import Dict, List, Optional
 
 import yaml
+
+from ..core.cli import parser
 
 PRIOR_TOPIC = '/%s/map_merge/prior'
 GOAL_TOPIC = '/%s/move_base_simple/goal'
@@ -119,7 +120,7 @@ def robots_rviz_main(argv: Optional[List[str]] = None) -> int:
     if argv is None:
         argv = sys.argv[1:]
     ros_args = [a for a in argv if ':=' in a]
-    ap = argparse.ArgumentParser(prog='robots_rviz', description=robots_rviz_main.__doc__.split('\n')[0])
+    ap = parser('robots_rviz', robots_rviz_main.__doc__)
     ap.add_argument('--robots', required=True, help='robot namespaces, separated by spaces')
     ap.add_argument('--node', default='/map_merge', help='the merger node\'s name, whose ~markers '
                     'and merged map rviz shows (default /map_merge; m-explore\'s launch file: '

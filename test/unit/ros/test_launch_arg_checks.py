@@ -1,0 +1,159 @@
+"""A launch arg outside its fixed set of values stops roslaunch with a message naming the arg,
+its value and the values allowed (launch/includes/check_arg.launch), and nothing starts.
+
+Runs roslaunch itself (its dry parse, ``roslaunch --nodes``, and once a real ``roslaunch``):
+what a user types, the exit code and the text they read. No master is needed: the check fires
+while roslaunch loads the files, before it contacts or starts one.
+Run after sourcing the workspace's devel/setup.bash (``make unit`` does).
+"""
+import os
+import re
+import shutil
+import signal
+import socket
+import subprocess
+
+import pytest
+
+pytest.importorskip('roslaunch')
+import rospkg  # noqa: E402
+from conftest import REPO  # noqa: E402
+
+LAUNCH = os.path.join(REPO, 'launch')
+ANSI = re.compile(r'\x1b\[[0-9;]*m')
+BURGER = os.path.join(REPO, 'test', 'data', 'turtlebot3', 'turtlebot3_description', 'urdf',
+                      'turtlebot3_burger.urdf.xacro')
+
+
+@pytest.fixture(scope='module', autouse=True)
+def _workspace():
+    if shutil.which('roslaunch') is None:
+        pytest.skip('roslaunch is not installed')
+    try:
+        rospkg.RosPack().get_path('multi_map_merge')
+    except rospkg.ResourceNotFound:
+        pytest.fail('multi_map_merge is not on ROS_PACKAGE_PATH: '
+                    'source the workspace devel/setup.bash (make build) first')
+
+
+def free_port():
+    with socket.socket() as s:
+        s.bind(('127.0.0.1', 0))
+        return s.getsockname()[1]
+
+
+def roslaunch(*args, dry=True, timeout=30):
+    """(exit code, stdout, stderr) of ``roslaunch [--nodes] launch/<args...>``, on a master URI
+    nobody serves (nothing here may reach another master on the machine)."""
+    env = dict(os.environ, ROS_MASTER_URI='http://127.0.0.1:%d' % free_port())
+    argv = ['roslaunch'] + (['--nodes'] if dry else []) + [os.path.join(LAUNCH, args[0])] + list(args[1:])
+    p = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env,
+                         universal_newlines=True)
+    try:
+        out, err = p.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        # it launched after all (the check did not fire): Ctrl-C makes roslaunch stop the master
+        # and the nodes it started (they run in sessions of their own: a kill would orphan them)
+        p.send_signal(signal.SIGINT)
+        out, err = p.communicate(timeout=60)
+        pytest.fail('roslaunch %s ran for %d s instead of stopping:\n%s%s' % (' '.join(args), timeout, out, err))
+    return p.returncode, ANSI.sub('', out), ANSI.sub('', err)
+
+
+BAD = [
+    (('bag_replay.launch', 'bag:=/tmp/x.bag', 'slam:=gmaping'),
+     'slam:=gmaping is not one of: recorded, gmapping'),
+    (('bag_replay.launch', 'bag:=/tmp/x.bag', 'slam:=gmapping', 'robot_count:=5'),
+     'robot_count:=5 is not one of: 1, 2, 3, 4 (slam:=gmapping runs one gmapping for each of tb3_0 .. tb3_3'),
+    (('bag_replay.launch', 'bag:=/tmp/x.bag', 'slam:=gmapping', 'robot_count:=0'),
+     'robot_count:=0 is not one of: 1, 2, 3, 4'),
+    (('team_bags_gmapping.launch', 'bag_0:=/tmp/a.bag', 'bag_1:=/tmp/b.bag', 'clock_bag:=2'),
+     'clock_bag:=2 is not one of: 0, 1 (the indexes of the bags given'),
+    (('team_bags_gmapping.launch', 'bag_0:=/tmp/a.bag', 'bag_1:=/tmp/b.bag', 'clock_bag:=5'),
+     'clock_bag:=5 is not one of: 0, 1 (the indexes of the bags given'),
+    (('team_bags_gmapping.launch', 'rviz:=false'),
+     'clock_bag:=0 is not one of: (none) (the indexes of the bags given'),
+    (('turtlebot3_multi_slam.launch', 'urdf_file:=' + BURGER, 'robot_count:=5'),
+     'robot_count:=5 is not one of: 1, 2, 3, 4 (1 to 4 robots'),
+    (('turtlebot3_multi_slam.launch', 'urdf_file:=' + BURGER, 'robot_count:=0'),
+     'robot_count:=0 is not one of: 1, 2, 3, 4 (1 to 4 robots'),
+    (('turtlebot3_multi_slam.launch', 'urdf_file:=' + BURGER, 'slam_on:=robto'),
+     'slam_on:=robto is not one of: base, robot'),
+    (('turtlebot3_multi_slam.launch', 'model:=burgr', 'robot_count:=1'),
+     'model:=burgr is not one of: burger, waffle, waffle_pi'),
+    (('map_merge.launch', 'output:=scren'), 'output:=scren is not one of: screen, log'),
+]
+
+
+@pytest.mark.parametrize('args,message', BAD, ids=[' '.join(a[0:1] + a[-1:]) for a, _ in BAD])
+def test_a_wrong_value_stops_roslaunch_naming_it(args, message):
+    rc, out, err = roslaunch(*args)
+    assert rc == 1, (rc, out, err)
+    assert 'Value error: ' + message in err, err
+    assert 'Traceback' not in err and 'list index out of range' not in err, err
+    assert out.strip() == '', out      # no node listed: nothing would start
+
+
+GOOD = [
+    (('bag_replay.launch', 'bag:=/tmp/x.bag', 'slam:=gmapping', 'robot_count:=1'),
+     ['/rosbag_play', '/tf_relay', '/tb3_0/scan_frame_relay', '/tb3_0/slam_gmapping', '/map_merge', '/rviz']),
+    (('bag_replay.launch', 'bag:=/tmp/x.bag', 'slam:=recorded', 'robot_count:=9', 'rviz:=false'),
+     ['/rosbag_play', '/map_merge']),           # robot_count is not used by slam:=recorded
+    (('team_bags_gmapping.launch', 'bag_0:=/tmp/a.bag', 'bag_2:=/tmp/c.bag', 'clock_bag:=2', 'rviz:=false'),
+     ['/play_tb3_0', '/tb3_0/frame_prefix_relay', '/tb3_0/slam_gmapping',
+      '/play_tb3_2', '/tb3_2/frame_prefix_relay', '/tb3_2/slam_gmapping', '/map_merge']),
+    (('turtlebot3_multi_slam.launch', 'urdf_file:=' + BURGER, 'robot_count:=1', 'model:=anything', 'rviz:=false'),
+     ['/tb3_0/robot_state_publisher', '/tb3_0/scan_frame_relay', '/tb3_0/slam_gmapping', '/map_merge']),
+]
+
+
+@pytest.mark.parametrize('args,expected', GOOD, ids=[' '.join(a[0:1] + a[-2:]) for a, _ in GOOD])
+def test_right_values_pass_the_checks(args, expected):
+    rc, out, err = roslaunch(*args)
+    assert rc == 0, (rc, out, err)
+    assert sorted(out.split()) == sorted(expected), out
+
+
+def test_real_roslaunch_stops_before_any_master_or_node():
+    """Not the dry parse: ``roslaunch bag_replay.launch slam:=gmaping`` exits 1 with the message,
+    having started no master (the URI is on a free port) and no process."""
+    rc, out, err = roslaunch('bag_replay.launch', 'bag:=/tmp/x.bag', 'slam:=gmaping', 'rviz:=false',
+                             dry=False)
+    assert rc == 1, (rc, out, err)
+    assert 'Value error: slam:=gmaping is not one of: recorded, gmapping' in err, err
+    for started in ('auto-starting new master', 'process[', 'started roslaunch server', 'ROS_MASTER_URI='):
+        assert started not in out + err, out + err
+
+
+def test_bag_replay_gmapping_relays_each_robots_scans_into_its_own_frame():
+    """Bags of real LDS-02 robots have their scans in "base_scan": each gmapping reads the scans
+    scan_frame_relay puts into tb3_N/base_scan; fix_scan_frame:=false reads /tb3_N/scan as it is."""
+    from roslaunch.config import ROSLaunchConfig
+    from roslaunch.xmlloader import XmlLoader
+
+    def load(*args):
+        cfg = ROSLaunchConfig()
+        XmlLoader().load(os.path.join(LAUNCH, 'bag_replay.launch'), cfg, verbose=False,
+                         argv=['bag:=/tmp/x.bag', 'slam:=gmapping', 'rviz:=false'] + list(args))
+        return cfg
+    cfg = load('robot_count:=3')
+    relays = sorted(n.namespace for n in cfg.nodes if n.type == 'scan_frame_relay')
+    assert relays == ['/tb3_0/', '/tb3_1/', '/tb3_2/']
+    for i in range(3):
+        assert cfg.params['/tb3_%d/scan_frame_relay/frame_id' % i].value == 'tb3_%d/base_scan' % i
+        (g,) = [n for n in cfg.nodes if n.type == 'slam_gmapping' and n.namespace == '/tb3_%d/' % i]
+        assert g.remap_args == [['scan', 'scan_framed']]
+    cfg = load('robot_count:=2', 'fix_scan_frame:=false')
+    assert [n for n in cfg.nodes if n.type == 'scan_frame_relay'] == []
+    assert all(n.remap_args == [] for n in cfg.nodes if n.type == 'slam_gmapping')
+
+
+@pytest.mark.parametrize('name', ['map_merge.launch', 'bag_replay.launch'])
+def test_the_merger_s_earlier_parameters_are_cleared(name):
+    """Parameters an earlier launch left under /map_merge (e.g. one of ours beside m-explore's
+    name for it, where ours wins) are deleted before this launch sets its own."""
+    from roslaunch.config import ROSLaunchConfig
+    from roslaunch.xmlloader import XmlLoader
+    cfg = ROSLaunchConfig()
+    XmlLoader().load(os.path.join(LAUNCH, name), cfg, argv=['bag:=/tmp/x.bag'], verbose=False)
+    assert '/map_merge/' in cfg.clear_params, cfg.clear_params
