@@ -41,7 +41,9 @@ class TestRobotsRviz(unittest.TestCase):
             self.assertIsNotNone(names, r.stdout)
             self.assertEqual([n for n in names if n.endswith(' prior')], ['alpha prior', 'scout_7 prior'])
             self.assertNotIn('2D Pose Estimate', names)
-            self.assertIn('2D Nav Goal', names)
+            # a goal tool per robot, on its own move_base (no global 2D Nav Goal)
+            self.assertEqual([n for n in names if n.endswith(' goal')], ['alpha goal', 'scout_7 goal'])
+            self.assertNotIn('2D Nav Goal', names)
 
 
 if __name__ == '__main__':
