@@ -40,6 +40,15 @@ def shared_data() -> str:
     return os.path.join(os.path.dirname(pkg), 'shared', 'data')
 
 
+def skip_without_gmapping(test: unittest.TestCase) -> None:
+    """Skip ``test`` when ROS finds no package gmapping (the real slam_gmapping node)."""
+    try:
+        rospkg.RosPack().get_path('gmapping')
+    except rospkg.ResourceNotFound:
+        test.skipTest('no gmapping: ROS has no package gmapping (Ubuntu: ros-noetic-gmapping; '
+                      'Debian: make gmapping builds it from ../shared/gmapping)')
+
+
 def stop_launch(proc: subprocess.Popen, timeout: float = 20.0) -> None:
     """Stop a roslaunch started with ``start_new_session=True``: SIGINT to its process group
     (roslaunch then stops its nodes), SIGKILL if it has not ended within ``timeout``."""

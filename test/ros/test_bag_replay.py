@@ -14,7 +14,7 @@ import numpy as np
 import rospkg
 import rospy
 import rostest
-from rostest_helpers import stop_launch
+from rostest_helpers import skip_without_gmapping, stop_launch
 
 from multi_map_merge.core.mapio import load_map
 from multi_map_merge.core.transforms import se2
@@ -44,11 +44,7 @@ class TestBagReplay(unittest.TestCase):
         rp = rospkg.RosPack()
         pkg = rp.get_path('multi_map_merge')
         if slam == 'gmapping':
-            try:
-                rp.get_path('gmapping')
-            except rospkg.ResourceNotFound:
-                self.skipTest('no gmapping: ROS has no package gmapping (Ubuntu: ros-noetic-gmapping; '
-                              'Debian: make gmapping builds it from ../shared/gmapping)')
+            skip_without_gmapping(self)
         tmp = tempfile.mkdtemp(prefix='mmm_bag_')
         bag = os.path.join(tmp, 'house3.bag')
         r = subprocess.run([sys.executable, os.path.join(pkg, 'scripts', 'make_robot_bags'), '-o', bag,

@@ -22,7 +22,7 @@ import unittest
 
 import rospkg
 import rostest
-from rostest_helpers import stop_launch
+from rostest_helpers import skip_without_gmapping, stop_launch
 
 from multi_map_merge.lab.scans_processed import bag_scans_and_odom, count_updates, gmapping_updates, load_rule
 from multi_map_merge.ros.replay import BAG_EPOCH, record_replay
@@ -52,13 +52,8 @@ class TestLds02DriverGmapping(unittest.TestCase):
         self.assertGreater(zeros, 100 * 5)
 
     def test_the_relay_makes_gmapping_use_every_driver_scan(self):
-        rp = rospkg.RosPack()
-        try:
-            rp.get_path('gmapping')
-        except rospkg.ResourceNotFound:
-            self.skipTest('no gmapping: ROS has no package gmapping (Ubuntu: ros-noetic-gmapping; '
-                          'Debian: make gmapping builds it from ../shared/gmapping)')
-        pkg = rp.get_path('multi_map_merge')
+        skip_without_gmapping(self)
+        pkg = rospkg.RosPack().get_path('multi_map_merge')
         tmp = tempfile.mkdtemp(prefix='mmm_ld08_')
         bag = os.path.join(tmp, 'driver.bag')
         r = subprocess.run([sys.executable, os.path.join(pkg, 'scripts', 'make_robot_bags'), '-o', bag,

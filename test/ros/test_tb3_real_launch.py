@@ -27,7 +27,7 @@ import rospkg
 import rospy
 import rostest
 import tf2_ros
-from rostest_helpers import lookup, stop_launch
+from rostest_helpers import lookup, skip_without_gmapping, stop_launch
 from sensor_msgs.msg import LaserScan
 
 from multi_map_merge.core.transforms import se2
@@ -87,13 +87,8 @@ def run_tb3_launch(test, launch_args=(), launch_log=None, before_stop=None, env=
     launch to the first ``map -> <robot>/map``}. ``launch_log``: a file for roslaunch's output;
     ``before_stop()``: called after the bag ended, while the launch still runs; ``env``: the
     launch's environment."""
-    rp = rospkg.RosPack()
-    try:
-        rp.get_path('gmapping')
-    except rospkg.ResourceNotFound:
-        test.skipTest('no gmapping: ROS has no package gmapping (Ubuntu: ros-noetic-gmapping; '
-                      'Debian: make gmapping builds it from ../shared/gmapping)')
-    pkg = rp.get_path('multi_map_merge')
+    skip_without_gmapping(test)
+    pkg = rospkg.RosPack().get_path('multi_map_merge')
     tmp, bag = two_robot_lds02_bag(test, pkg, 'mmm_tb3_')
     init_node('test_tb3_real_launch')
     buf = tf2_ros.Buffer(rospy.Duration(60.0))
@@ -103,7 +98,7 @@ def run_tb3_launch(test, launch_args=(), launch_log=None, before_stop=None, env=
         rospy.Subscriber('/%s/scan_framed' % name, LaserScan,
                          lambda m, n=name: framed.setdefault(n, m.header.frame_id), queue_size=1)
     try:
-        rp.get_path('robot_state_publisher')
+        rospkg.RosPack().get_path('robot_state_publisher')
     except rospkg.ResourceNotFound:
         test.fail('no robot_state_publisher (Debian: ros-robot-state-publisher, in the Makefile)')
     urdf = os.path.join(pkg, 'test', 'data', 'turtlebot3', 'turtlebot3_description', 'urdf',

@@ -9,9 +9,8 @@ import subprocess
 import unittest
 
 import numpy as np
-import rospkg
 import rostest
-from rostest_helpers import shared_data, stop_launch
+from rostest_helpers import shared_data, skip_without_gmapping, stop_launch
 
 from multi_map_merge.core.transforms import pose_to_image, se2
 from multi_map_merge.core.verify import agreement
@@ -28,11 +27,7 @@ class TestTeamBagsGmapping(unittest.TestCase):
         bags = [os.path.join(shared_data(), 'mrgs', 'bags_raw', 'isr_small_raw_%d.bag' % k) for k in (1, 2, 3)]
         if not all(os.path.exists(b) for b in bags):
             self.skipTest('../shared/data/mrgs is absent: the real robots\' raw bags are not here')
-        try:
-            rospkg.RosPack().get_path('gmapping')
-        except rospkg.ResourceNotFound:
-            self.skipTest('no gmapping: ROS has no package gmapping (Ubuntu: ros-noetic-gmapping; '
-                          'Debian: make gmapping builds it from ../shared/gmapping)')
+        skip_without_gmapping(self)
         init_node('test_team_bags_gmapping')
         # isr_small_raw_1 is the longest run (154 s): the team runs on its clock
         launch = subprocess.Popen(['roslaunch', 'multi_map_merge', 'team_bags_gmapping.launch', 'rviz:=false',
