@@ -83,6 +83,31 @@ def halves(world: Grid, y: float, strip: float, poses: Sequence[Sequence[float]]
             cut_piece(world, (r0, min(r1, mid + k), c0, c1), poses[1], frames[1])]
 
 
+def in_world_frame(world: Grid, box: Sequence[float], extent: Sequence[float] = (-10.0, -10.0, 10.0, 10.0),
+                   frame_id: str = '') -> Grid:
+    """A robot's map in the world's own frame, as ROBOTIS's Gazebo robots make theirs (the
+    diff-drive plugin's odometry is the world pose, and gmapping starts its map frame on the
+    odometry frame): a grid over ``extent`` (xmin, ymin, xmax, ymax, metres: gmapping's xmin,
+    ymin, xmax, ymax; multiples of the resolution) at the world's resolution, holding the world
+    (a yaw-0 grid whose origin lies on the same lattice) within ``box`` (x0, x1, y0, y1,
+    metres) and unknown elsewhere."""
+    res = world.resolution
+    xmin, ymin, xmax, ymax = extent
+    w, h = int(round((xmax - xmin) / res)), int(round((ymax - ymin) / res))
+    off_c = int(round((xmin - world.origin[0]) / res))
+    off_r = int(round((ymin - world.origin[1]) / res))
+    x0, x1, y0, y1 = box
+    c0, c1 = max(0, int(round((x0 - xmin) / res))), min(w, int(round((x1 - xmin) / res)))
+    r0, r1 = max(0, int(round((y0 - ymin) / res))), min(h, int(round((y1 - ymin) / res)))
+    # the world's cells there (those outside the world stay unknown)
+    wr0, wr1 = max(r0 + off_r, 0), min(r1 + off_r, world.height)
+    wc0, wc1 = max(c0 + off_c, 0), min(c1 + off_c, world.width)
+    out = np.zeros((h, w), np.uint8)
+    if wr1 > wr0 and wc1 > wc0:
+        out[wr0 - off_r:wr1 - off_r, wc0 - off_c:wc1 - off_c] = world.levels()[wr0:wr1, wc0:wc1]
+    return Grid(levels_to_values(out), res, (float(xmin), float(ymin), 0.0), frame_id)
+
+
 def random_poses(n: int, seed: int, max_offset: float = 5.0,
                  max_yaw: float = math.pi) -> List[Tuple[float, float, float]]:
     """n poses (x, y, yaw): offsets up to ``max_offset`` metres, yaw up to ``max_yaw`` rad."""

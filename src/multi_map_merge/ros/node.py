@@ -24,6 +24,7 @@ from visualization_msgs.msg import MarkerArray
 from ..core.config import MergeConfig
 from ..core.grid import Grid, GridError, apply_update, same_grid
 from ..core.merger import MapMerger
+from ..core.spawn import spawn_poses_in_one_frame
 from ..core.state import load_state, save_state
 from ..core.transforms import se2, xyyaw
 from ..core.workers import start_pool
@@ -161,6 +162,12 @@ class MergeNode:
         self._prior_lock = threading.Lock()
         self._implicit_ref_prior = ''   # the reference given [0, 0, 0] for run-time priors
         self._tf_buffer = None          # made on the first prior given in another frame
+        # m-explore's init_pose_* as read (robot -> [x, y, yaw]) while they may still be spawn
+        # poses in one frame the maps share (core/spawn.py); once the grids say so, True, and every
+        # robot's prior is [0, 0, 0]
+        self._spawn_poses: Dict[str, List[float]] = {}
+        self._spawn_checked = None      # the grids the last check saw
+        self._spawn_shared = False
         # the reference robot: ~reference_robot, else the first of ~robots by name, else the first
         # by name among the robots with a map until another is merged with it (decide_reference)
         self._ref_logged = None
@@ -418,10 +425,53 @@ class MergeNode:
         if not all(math.isfinite(v) for v in pose):
             rospy.logerr('multi_map_merge: ignoring the initial pose of %s: not finite %s', robot, pose)
             return
-        # a new dict, not an update: the estimation thread reads the old one meanwhile
-        self.cfg.initial_poses = dict(self.cfg.initial_poses, **{robot: pose})
+        with self._prior_lock:
+            self._spawn_poses[robot] = pose
+            if self._spawn_shared:
+                # the set-up is known: these are spawn poses in the frame every map shares
+                self.merger.set_initial_pose(robot, [0.0, 0.0, 0.0])
+                rospy.loginfo('multi_map_merge: initial pose of %s from /%s/map_merge/init_pose_*: x=%.3f m '
+                              'y=%.3f m yaw=%.2f deg, a spawn pose in the frame the robots\' maps share (as '
+                              'said above): its prior is [0, 0, 0]', robot, robot, pose[0], pose[1],
+                              math.degrees(pose[2]))
+                return
+            # a new dict, not an update: the estimation thread reads the old one meanwhile
+            self.cfg.initial_poses = dict(self.cfg.initial_poses, **{robot: pose})
         rospy.loginfo('multi_map_merge: initial pose of %s from /%s/map_merge/init_pose_*: x=%.3f m '
                       'y=%.3f m yaw=%.2f deg', robot, robot, pose[0], pose[1], math.degrees(pose[2]))
+
+    def _check_spawn_poses(self) -> None:
+        """Before each estimation cycle, until decided: are the init_pose_* priors spawn poses
+        of robots whose maps share one frame (ROBOTIS's Gazebo set-up, core/spawn.py)? Then
+        one warning says so and what to change, and every such robot's prior becomes [0, 0, 0]
+        (its map frame is the shared frame). Priors changed since they were read (rviz) are
+        left out."""
+        with self._prior_lock:
+            if self._spawn_shared or len(self._spawn_poses) < 2:
+                return
+            priors = {r: p for r, p in self._spawn_poses.items()
+                      if self.cfg.initial_poses.get(r) == p and r in self._latest}
+        grids = {r: self._latest[r] for r in priors}
+        seen = tuple(sorted((r, id(g)) for r, g in grids.items()))
+        if seen == self._spawn_checked:
+            return
+        self._spawn_checked = seen
+        verdict = spawn_poses_in_one_frame(self.cfg, grids, priors)
+        if verdict is None:
+            return
+        with self._prior_lock:
+            self._spawn_shared = True
+            for r in sorted(self._spawn_poses):
+                if self.cfg.initial_poses.get(r) == self._spawn_poses[r]:
+                    for event in self.merger.set_initial_pose(r, [0.0, 0.0, 0.0]):
+                        rospy.logwarn('multi_map_merge: %s', event)
+        rospy.logwarn(
+            'multi_map_merge: ~known_init_poses: the init_pose_* of %s are spawn poses of robots whose maps '
+            'share one frame, not the poses of their map frames (ROBOTIS\'s Gazebo set-up: every gmapping map '
+            'starts in Gazebo\'s world frame): %s; merging with [0, 0, 0] as the prior of each. To say so in '
+            'your launch file: set known_init_poses false (the maps alone place the robots) or every '
+            'init_pose_x, _y, _yaw 0, and drop its static_transform_publishers of %s -> <robot>/map (this node '
+            'broadcasts them)', ', '.join(verdict.robots), verdict.message(), self.cfg.merged_map_frame)
 
     def _refuse(self, robot: str, reason: str) -> None:
         if self._bad.get(robot) != reason:  # once per robot and reason, not per message
@@ -476,6 +526,7 @@ class MergeNode:
             t0 = time.monotonic()
             failed_before = self._est_error is not None
             try:
+                self._check_spawn_poses()
                 for event in self.merger.estimate():
                     rospy.loginfo('multi_map_merge: %s', event)
                 self._log_reference()

@@ -1,0 +1,95 @@
+"""m-explore's init_pose_* read against the grids (core/spawn.py): ROBOTIS's Gazebo set-up (spawn
+poses of robots whose maps all start in the world frame) is told apart from priors that are the
+poses of the map frames, and only then does the merger place the robots at identity."""
+import math
+
+import numpy as np
+import pytest
+from conftest import merged, pose_error
+
+from multi_map_merge.core.config import MergeConfig
+from multi_map_merge.core.spawn import spawn_point_free, spawn_poses_in_one_frame
+from multi_map_merge.core.transforms import se2
+from multi_map_merge.lab.pieces import cut_piece, in_world_frame
+
+# ROBOTIS's multi_map_merge.launch: init_pose_* = the spawn positions (yaw written 0)
+SPAWN = {'tb3_0': [-7.0, -1.0, 0.0], 'tb3_1': [7.0, -1.0, 0.0], 'tb3_2': [0.5, 3.0, 0.0]}
+# what each robot mapped around its spawn point in the AWS small house (x0, x1, y0, y1)
+MAPPED = {'tb3_0': (-9.6, 0.5, -6.0, 6.0), 'tb3_1': (1.5, 9.8, -6.0, 6.0), 'tb3_2': (-3.5, 5.0, -2.5, 6.0)}
+
+
+@pytest.fixture(scope='module')
+def gazebo(house):
+    """The three robots' maps as ROBOTIS's Gazebo robots make them: all in the world frame."""
+    return {r: in_world_frame(house, MAPPED[r], frame_id='%s/map' % r) for r in MAPPED}
+
+
+def test_in_world_frame_keeps_the_world_where_it_is(house, gazebo):
+    g = gazebo['tb3_2']
+    assert g.origin == (-10.0, -10.0, 0.0) and g.data.shape == (400, 400)
+    for x, y in [(0.5, 3.0), (-3.0, -2.0), (4.9, 5.9)]:
+        r, c = int((y + 10.0) / 0.05), int((x + 10.0) / 0.05)
+        rw, cw = int((y - house.origin[1]) / 0.05), int((x - house.origin[0]) / 0.05)
+        assert g.levels()[r, c] == house.levels()[rw, cw]
+    assert (g.levels()[:, :int((-3.5 + 10) / 0.05)] == 0).all()   # west of its box: unknown
+
+
+def test_spawn_poses_of_maps_in_one_frame_are_detected(gazebo):
+    v = spawn_poses_in_one_frame(MergeConfig(), gazebo, SPAWN)
+    assert v is not None
+    assert v.robots == ['tb3_0', 'tb3_1', 'tb3_2']
+    # the overlapping pairs, each agreeing at identity; tb3_0 and tb3_1 do not overlap
+    assert sorted((a, b) for a, b, *_ in v.pairs) == [('tb3_0', 'tb3_2'), ('tb3_1', 'tb3_2')]
+    assert all(agr >= 0.95 and ovl > 5000 for _, _, agr, ovl, _ in v.pairs), v.pairs
+    assert {round(off, 2) for *_, off in v.pairs} == {8.5, 7.63}
+    assert 'agree where they are' in v.message()
+
+
+def test_priors_that_are_map_frames_are_left_alone(house):
+    """m-explore's meaning: each prior is the pose of its robot's map frame (the robot starts at
+    its map's origin); maps in frames of their own do not agree at identity: no verdict."""
+    poses = {'tb3_0': (-7.0, -1.0, 0.0), 'tb3_2': (0.5, 3.0, 0.0)}
+    grids, priors = {}, {}
+    for r, (x, y, yaw) in poses.items():
+        x0, x1, y0, y1 = MAPPED[r]
+        rect = (int((y0 + 12.5) / 0.05), int((y1 + 12.5) / 0.05), int((x0 + 12.5) / 0.05), int((x1 + 12.5) / 0.05))
+        grids[r], _ = cut_piece(house, rect, (x, y, yaw), '%s/map' % r)
+        priors[r] = [x, y, yaw]
+    assert spawn_poses_in_one_frame(MergeConfig(), grids, priors) is None
+    # and the merger places them by those priors, as m-explore would
+    m = merged(grids, initial_poses=priors, map_drift=0.0)
+    d, a = pose_error(m.placements()['tb3_2'].T, np.linalg.inv(se2(*poses['tb3_0'])) @ se2(*poses['tb3_2']))
+    assert d < 0.1 and a < 1.0
+
+
+def test_no_verdict_without_the_grids_saying_so(gazebo):
+    cfg = MergeConfig()
+    # a spawn point on a wall or outside the map: not where a robot stood
+    wall = dict(SPAWN, tb3_2=[0.5, -6.0, 0.0])
+    assert not spawn_point_free(cfg, gazebo['tb3_2'], 0.5, -6.0)
+    assert spawn_poses_in_one_frame(cfg, gazebo, wall) is None
+    assert not spawn_point_free(cfg, gazebo['tb3_0'], 50.0, 0.0)
+    # only the two robots that do not overlap: nothing to tell
+    assert spawn_poses_in_one_frame(cfg, {r: gazebo[r] for r in ('tb3_0', 'tb3_1')},
+                                    {r: SPAWN[r] for r in ('tb3_0', 'tb3_1')}) is None
+    # a robot with a prior but no map yet: wait
+    assert spawn_poses_in_one_frame(cfg, {r: gazebo[r] for r in ('tb3_0', 'tb3_2')}, SPAWN) is None
+    # priors that say identity already: nothing to correct
+    assert spawn_poses_in_one_frame(cfg, gazebo, {r: [0.0, 0.0, 0.0] for r in SPAWN}) is None
+    # one map moved out of the shared frame: it disagrees at identity
+    moved = dict(gazebo)
+    g = gazebo['tb3_2']
+    moved['tb3_2'] = type(g)(g.data, g.resolution, (g.origin[0] + 0.6, g.origin[1], 0.0), g.frame_id)
+    assert spawn_poses_in_one_frame(cfg, moved, SPAWN) is None
+
+
+def test_merged_at_identity_once_the_priors_are_read_as_spawn_poses(gazebo):
+    """Read as map frames they reject the right links (ROBOTIS's launch with our node, issue 32);
+    [0, 0, 0] for each, as the verdict says, merges them where they are."""
+    m = merged(gazebo, initial_poses=SPAWN, map_drift=0.0)
+    assert set(m.placements()) == {'tb3_0'}
+    assert 'contradicts initial poses' in m.status()['tb3_1'].last_attempt.reason
+    m = merged(gazebo, initial_poses={r: [0.0, 0.0, 0.0] for r in SPAWN}, map_drift=0.0)
+    for r in ('tb3_1', 'tb3_2'):
+        d, a = pose_error(m.placements()[r].T, np.eye(3))
+        assert d < 0.02 and a < math.degrees(0.005), (r, d, a)
