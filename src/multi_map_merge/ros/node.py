@@ -407,8 +407,8 @@ class MergeNode:
         """m-explore's per-robot prior, ``/<robot>/map_merge/init_pose_{x,y,yaw}`` (metres,
         radians; the robot's map frame in a common world frame), for a robot that
         ``initial_poses`` does not list, only under ``~known_init_poses`` (off by default, as in
-        m-explore: ROBOTIS's Gazebo launch files write spawn positions there while every
-        robot's map frame starts at the world origin)."""
+        m-explore). ROBOTIS's Gazebo launch file writes spawn positions there while every
+        robot's map is in the world frame: :meth:`_check_spawn_poses` tells that from the grids."""
         if not self.cfg.known_init_poses or robot in self.cfg.initial_poses:
             return
         names = ['/%s/map_merge/init_pose_%s' % (robot, k) for k in ('x', 'y', 'yaw')]

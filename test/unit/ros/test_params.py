@@ -229,11 +229,16 @@ def test_the_readme_has_the_robotis_gazebo_troubleshooting_entry():
 
 
 def test_robotis_mexplore_block_resolves_with_only_the_confidence_warning():
-    """The parameters turtlebot3_slam's multi_map_merge.launch gives m-explore's node, given to
-    ours unchanged (only pkg and type changed)."""
+    """The parameters turtlebot3_gazebo's multi_map_merge.launch (ROBOTIS, noetic; shipped in
+    test/data/turtlebot3_simulations) gives m-explore's node, given to ours unchanged (only pkg
+    and type changed)."""
     robotis = {'robot_map_topic': 'map', 'robot_namespace': 'tb3', 'merged_map_topic': 'map',
                'world_frame': 'map', 'known_init_poses': True, 'merging_rate': 0.5,
                'discovery_rate': 0.05, 'estimation_rate': 0.1, 'estimation_confidence': 1.0}
+    import xml.etree.ElementTree as ET
+    root = ET.parse(os.path.join(REPO, 'test', 'data', 'turtlebot3_simulations', 'multi_map_merge.launch.xml'))
+    (node,) = [n for n in root.iter('node') if n.get('name') == 'map_merge']
+    assert {p.get('name'): yaml.safe_load(p.get('value')) for p in node.iter('param')} == robotis
     res = resolve_params(robotis)
     assert not res.errors
     assert len(res.warnings) == 1 and '~estimation_confidence' in res.warnings[0]
