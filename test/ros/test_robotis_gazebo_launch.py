@@ -48,11 +48,11 @@ from rostest_helpers import (
     DATA,
     MERGER,
     Listener,
+    NumpyGrid,
     compare_with_truth,
     data_file,
     fmt_pose,
     lookup,
-    publish_latched,
     stop_launch,
     union_mask_of,
     wait_until,
@@ -62,7 +62,7 @@ from tf2_msgs.msg import TFMessage
 from multi_map_merge.core.mapio import load_map
 from multi_map_merge.core.transforms import pose_distance, se2
 from multi_map_merge.lab.pieces import in_world_frame
-from multi_map_merge.ros.convert import transform_msg
+from multi_map_merge.ros.convert import grid_to_msg, transform_msg
 
 PKG = 'multi_map_merge'
 ROBOTIS = os.path.join(DATA, 'turtlebot3_simulations', 'multi_map_merge.launch.xml')   # see ATTRIBUTION.md
@@ -125,7 +125,10 @@ class TestRobotisGazeboLaunch(unittest.TestCase):
         self.buf = tf2_ros.Buffer(rospy.Duration(30.0))
         tf2_ros.TransformListener(self.buf)
         self.listen = Listener()
-        pubs = publish_latched(ROBOTS, [grids[r] for r in ROBOTS])   # noqa: F841 (kept: latched maps)
+        # the map topics are there from the start (the node finds the robots at once), their maps
+        # come once the node's log reaches this test (a log line is not latched: the spawn
+        # poses' line would come before /rosout connects)
+        pubs = {r: rospy.Publisher('/%s/map' % r, NumpyGrid, queue_size=1, latch=True) for r in ROBOTS}
         stop = threading.Event()
         threading.Thread(target=self._robots_tf, args=(stop,), daemon=True).start()
         have_tf = bool(roslib.packages.find_node('tf', 'static_transform_publisher'))
@@ -143,6 +146,10 @@ class TestRobotisGazeboLaunch(unittest.TestCase):
                 x = wait_until(lambda: rospy.get_param('/tb3_1/map_merge/init_pose_x', None), 30.0)
                 self.assertEqual(x, 7.0)
                 self.assertTrue(rospy.get_param('/map_merge/known_init_poses'))
+                heard = wait_until(lambda: self.logs, 30.0)
+                print('the merger\'s log %s on /rosout' % ('heard' if heard else 'not heard in 30 s'))
+                for r in ROBOTS:
+                    pubs[r].publish(grid_to_msg(grids[r], rospy.Time.now(), '%s/map' % r))
                 self._check_merge()
             finally:
                 stop_launch(proc)
@@ -245,6 +252,7 @@ class TestRobotisGazeboLaunch(unittest.TestCase):
             named = [ln for ln in lines if ln.startswith('[WARN]') and
                      'node /world_to_%s_tf_broadcaster publishes the TF map -> %s/map' % (r, r) in ln]
             self.assertEqual(len(named), 1, [ln for ln in lines if 'publishes the TF' in ln])
+        self.assertEqual(len([ln for ln in lines if SHARED_FRAME_LINE in ln]), 1)
         self.assertEqual([ln for ln in lines if ln.startswith('[ERROR]')], [])
 
 
