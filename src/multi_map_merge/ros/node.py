@@ -461,17 +461,18 @@ class MergeNode:
             return
         with self._prior_lock:
             self._spawn_shared = True
-            for r in sorted(self._spawn_poses):
-                if self.cfg.initial_poses.get(r) == self._spawn_poses[r]:
-                    for event in self.merger.set_initial_pose(r, [0.0, 0.0, 0.0]):
-                        rospy.logwarn('multi_map_merge: %s', event)
+            # (robots read from init_pose_* whose maps have not come yet too: the set-up is one)
+            changed = [r for r in sorted(self._spawn_poses) if self.cfg.initial_poses.get(r) == self._spawn_poses[r]]
+            for r in changed:
+                for event in self.merger.set_initial_pose(r, [0.0, 0.0, 0.0]):
+                    rospy.logwarn('multi_map_merge: %s', event)
         rospy.logwarn(
             'multi_map_merge: ~known_init_poses: the init_pose_* of %s are spawn poses of robots whose maps '
             'share one frame, not the poses of their map frames (ROBOTIS\'s Gazebo set-up: every gmapping map '
             'starts in Gazebo\'s world frame): %s; merging with [0, 0, 0] as the prior of each. To say so in '
             'your launch file: set known_init_poses false (the maps alone place the robots) or every '
             'init_pose_x, _y, _yaw 0, and drop its static_transform_publishers of %s -> <robot>/map (this node '
-            'broadcasts them)', ', '.join(verdict.robots), verdict.message(), self.cfg.merged_map_frame)
+            'broadcasts them)', ', '.join(changed), verdict.message(), self.cfg.merged_map_frame)
 
     def _refuse(self, robot: str, reason: str) -> None:
         if self._bad.get(robot) != reason:  # once per robot and reason, not per message
