@@ -181,7 +181,8 @@ def check_robot_base(cfg, robots, machine=False):
             assert n.machine_name == (robot if machine else None), (n.name, n.machine_name)
             if machine:
                 m = cfg.machines[robot]
-                assert m.env_loader == '/home/ubuntu/catkin_ws/devel/env.sh' and m.user == 'ubuntu'
+                assert m.env_loader == '/home/ubuntu/catkin_ws/devel/lib/multi_map_merge/env_loader'
+                assert m.user == 'ubuntu'
 
 
 @pytest.mark.parametrize('count,rviz', [(1, 'false'), (2, 'true'), (3, 'false'), (4, 'true')])
