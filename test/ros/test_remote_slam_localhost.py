@@ -9,11 +9,14 @@ this machine's and whose user is the launching user locally, without ssh. roslau
 (paramiko) reads ``$HOME/.ssh`` (config, known_hosts) as on a base station.
 
 The same run as tb3_real_launch.test (two Turtlebot3s' LDS-02 scans, real gmapping), with
-``slam_on:=robot``, both robots at 127.0.0.1, ``robot_user``, ``robot_ssh_port`` and an env
-loader written as the README's (the workspace's setup.bash, ``ROS_IP``, ``exec "$@"``). Asserts,
-besides everything tb3_real_launch asserts (both mapped and merged within 0.25 m and 6 degrees):
-roslaunch started its child through ssh; each robot's gmapping, robot_state_publisher and scan
-relay ran as the ssh user under sshd; all of them are gone once the launch is stopped."""
+``slam_on:=robot``, both robots at 127.0.0.1, ``robot_user``, ``robot_ssh_port`` and the
+workspace's own env loader (the launch's default, ``<devel>/lib/multi_map_merge/env_loader``,
+which finds ``ROS_IP`` itself; nothing else sets it). Asserts, besides everything tb3_real_launch
+asserts (both mapped and merged within 0.25 m and 6 degrees): roslaunch started its child through
+ssh; each robot's gmapping, robot_state_publisher and scan relay ran as the ssh user under sshd,
+with the ``ROS_IP`` the loader set, announcing that address; all of them are gone once the launch
+is stopped. Run under ``.ci/unresolvable_host`` (``.ci/unresolvable_host tools/ssh_robot_localhost
+test``), the host name resolves nowhere, so this shows the loader needs no name resolution."""
 import getpass
 import os
 import pwd
@@ -67,20 +70,28 @@ def check_ssh(user, address, port):
 
 
 def env_loader(directory):
-    """The README's env loader for this machine's workspaces (CMAKE_PREFIX_PATH's devel
-    spaces, the lowest first, the others with --extend), readable by any user."""
+    """The env loader the launch uses by default: the workspace's own
+    (<devel>/lib/multi_map_merge/env_loader), which sets ROS_IP itself from the route to the
+    master; nothing here sets it. Where gmapping comes from a workspace overlaid on ours
+    (`make gmapping` builds one), a wrapper runs our loader first, then sources that overlay,
+    which keeps ROS_IP. Returns (the loader roslaunch is given, ours)."""
     spaces = [p for p in os.environ.get('CMAKE_PREFIX_PATH', '').split(':')
               if os.path.isfile(os.path.join(p, 'setup.bash'))]
-    lines = ['#!/bin/bash', '# the environment roslaunch starts this robot\'s nodes in']
-    for i, p in enumerate(reversed(spaces)):
-        lines.append('source %s/setup.bash%s' % (p, ' --extend' if i else ''))
-    lines += ['export ROS_IP=127.0.0.1', 'exec "$@"', '']
+    ours = [i for i, p in enumerate(spaces) if os.path.isfile(os.path.join(p, 'lib', 'multi_map_merge', 'env_loader'))]
+    if not ours:
+        raise AssertionError('no <devel>/lib/multi_map_merge/env_loader in CMAKE_PREFIX_PATH: build the workspace')
+    loader = os.path.join(spaces[ours[0]], 'lib', 'multi_map_merge', 'env_loader')
+    overlays = spaces[:ours[0]]
+    if not overlays:
+        return loader, loader
+    lines = ['#!/bin/bash', '# our env loader, then the overlays above our workspace (gmapping); no ROS_IP here',
+             'exec %s bash -c \'source %s/setup.bash && exec "$@"\' overlays "$@"' % (loader, overlays[0]), '']
     path = os.path.join(directory, 'mmm_env.sh')
     with open(path, 'w') as f:
         f.write('\n'.join(lines))
     os.chmod(directory, 0o755)
     os.chmod(path, stat.S_IRWXU | stat.S_IRGRP | stat.S_IXGRP | stat.S_IROTH | stat.S_IXOTH)
-    return path
+    return path, loader
 
 
 def ancestors(pid):
@@ -111,7 +122,8 @@ class TestRemoteSlamLocalhost(unittest.TestCase):
                                % (os.environ['MMM_SSH_LOCALHOST'], err))
         uid = pwd.getpwnam(user).pw_uid
         tmp = tempfile.mkdtemp(prefix='mmm_remote_')
-        loader = env_loader(tmp)
+        loader, ours = env_loader(tmp)
+        print('env_loader: %s (ours: %s)' % (loader, ours))
         log = os.path.join(tmp, 'roslaunch.log')
         pids = {}
 
@@ -126,6 +138,12 @@ class TestRemoteSlamLocalhost(unittest.TestCase):
                     self.assertEqual(os.stat('/proc/%d' % pid).st_uid, uid,
                                      '%s (pid %d) does not run as %s' % (name, pid, user))
                     self.assertIn('sshd', ancestors(pid), '%s (pid %d) was not started through ssh' % (name, pid))
+                    # announced by the address the env loader found, not by the host name
+                    uri = master.lookupNode(name)
+                    self.assertTrue(uri.startswith('http://%s:' % address), '%s announces %s' % (name, uri))
+                    with open('/proc/%d/environ' % pid, 'rb') as f:
+                        environ = dict(v.split(b'=', 1) for v in f.read().split(b'\0') if b'=' in v)
+                    self.assertEqual(environ.get(b'ROS_IP'), address.encode(), name)
 
         run_tb3_launch(self, ['slam_on:=robot', 'first_tb3_address:=' + address, 'second_tb3_address:=' + address,
                               'robot_user:=' + user, 'robot_ssh_port:=%d' % port, 'env_loader:=' + loader],

@@ -146,6 +146,57 @@ def test_reference_robot_of_the_config_yaml_is_kept_unless_the_arg_is_given(tmp_
     assert param(cfg, '/map_merge/reference_robot') == 'tb3_3'
     cfg = load('map_merge.launch', 'config:=%s' % cfg_file, 'reference_robot:=tb3_1')
     assert param(cfg, '/map_merge/reference_robot') == 'tb3_1'
+    # its default is "(config)" (roslaunch --ros-args calls an arg with an empty default required);
+    # an empty reference_robot:= still means the config's, as it did
+    cfg = load('map_merge.launch', 'config:=%s' % cfg_file, 'reference_robot:=')
+    assert param(cfg, '/map_merge/reference_robot') == 'tb3_3'
+    # robots: "(discover)" or empty leaves the config's list (empty: discovery)
+    assert param(load('map_merge.launch', 'robots:='), '/map_merge/robots') == []
+    assert param(load('map_merge.launch'), '/map_merge/robots') == []
+    assert param(load('map_merge.launch', 'robots:=a b'), '/map_merge/robots') == 'a b'
+
+
+# what `roslaunch --ros-args FILE` lists under "Required Arguments:" (roslaunch.arg_dump: every
+# arg whose default is empty or absent): only what a user must give, and roslaunch's own quirks
+REQUIRED = {
+    'turtlebot3_multi_slam.launch': set(),
+    'map_merge.launch': set(),
+    'bag_replay.launch': {'bag'},
+    # a bag per robot: tb3_0's is required, the others' empty value means "no such robot";
+    # clock_path is a value= arg computed from them, which roslaunch lists whenever it is empty
+    'replay_robot_bags.launch': {'bag_0', 'bag_1', 'bag_2', 'bag_3'},
+    'team_bags_gmapping.launch': {'bag_0', 'bag_1', 'bag_2', 'bag_3', 'clock_path'},
+}
+
+
+@pytest.mark.parametrize('name', sorted(REQUIRED))
+def test_ros_args_lists_as_required_only_what_is(name):
+    """issue 32: reference_robot, urdf_file (and robots, particles) have non-empty defaults that
+    mean "not given", so --ros-args shows them as optional, with that default."""
+    from roslaunch.arg_dump import get_args
+    args = get_args([os.path.join(LAUNCH, name)])
+    assert {a for a, (_doc, default) in args.items() if not default} == REQUIRED[name]
+    for a, default in (('reference_robot', '(config)'), ('urdf_file', '(model)'), ('robots', '(discover)'),
+                       ('particles', '(config)')):
+        if a in args:
+            assert args[a][1] == default and default in args[a][0], (a, args[a])
+
+
+def test_the_urdf_file_default_is_the_xacro_of_the_model():
+    """urdf_file's default "(model)" (and an empty urdf_file:=, as before) is turtlebot3_description's
+    xacro of model; a file is read as it is. Where xacro or turtlebot3_description is not installed
+    (Debian) the default cannot load: roslaunch names what it did not find."""
+    for args in ((), ('urdf_file:=',)):
+        try:
+            cfg = load(TB3_BASE, 'robot:=tb3_0', *args)
+        except (roslaunch.core.RLException, rospkg.ResourceNotFound) as e:
+            assert 'xacro' in str(e) or 'turtlebot3_description' in str(e), e
+            continue
+        assert 'turtlebot3_burger.urdf.xacro' in param(cfg, '/tb3_0/robot_description') or \
+            '<robot' in param(cfg, '/tb3_0/robot_description')
+    cfg = load(TB3_BASE, 'robot:=tb3_0', URDF, 'model:=not_a_model')   # a file: the model is not checked
+    with open(BURGER) as f:
+        assert param(cfg, '/tb3_0/robot_description') == f.read()
 
 
 def test_gmapping_robot_include():
@@ -181,7 +232,8 @@ def check_robot_base(cfg, robots, machine=False):
             assert n.machine_name == (robot if machine else None), (n.name, n.machine_name)
             if machine:
                 m = cfg.machines[robot]
-                assert m.env_loader == '/home/ubuntu/catkin_ws/devel/env.sh' and m.user == 'ubuntu'
+                assert m.env_loader == '/home/ubuntu/catkin_ws/devel/lib/multi_map_merge/env_loader'
+                assert m.user == 'ubuntu'
 
 
 @pytest.mark.parametrize('count,rviz', [(1, 'false'), (2, 'true'), (3, 'false'), (4, 'true')])

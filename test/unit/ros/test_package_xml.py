@@ -31,11 +31,32 @@ MODULE_KEYS = {
 # optional: imported only where ImportError is handled, and deliberately not declared
 OPTIONAL = {'open3d': 'python3-open3d-pip'}
 ENV = {'ROS_PYTHON_VERSION': '3', 'ROS_DISTRO': 'noetic'}     # what rosdep sees on Noetic
+# ... and on a robot (README: MULTI_MAP_MERGE_SIDE=robot rosdep install ...)
+ROBOT_ENV = dict(ENV, MULTI_MAP_MERGE_SIDE='robot')
 OWN = 'multi_map_merge'
+# what a robot runs of ours: the relays (their scripts and their whole import chain) and the env
+# loader roslaunch starts its nodes through (slam_on:=robot)
+ROBOT_CODE = ['scripts/scan_frame_relay', 'scripts/tf_relay', 'scripts/frame_prefix_relay',
+              'src/multi_map_merge/ros/relays.py', 'src/multi_map_merge/core/scans.py',
+              'src/multi_map_merge/ros/env_loader.py']
+# the keys a robot needs, all of them (issue 32: 39 keys before, rviz, OpenCV, scipy, xvfb among them)
+ROBOT_KEYS = {'catkin', 'python3-setuptools', 'rospy', 'sensor_msgs', 'nav_msgs', 'tf2_msgs', 'rosbag',
+              'roslaunch', 'gmapping', 'robot_state_publisher', 'rostest'}
 
 
-def declared():
-    """{tag: set of keys} of package.xml, conditions evaluated as on Noetic."""
+def condition_holds(cond, env):
+    """A package.xml condition of clauses ``$VAR == word`` / ``$VAR != word`` joined by ``and``,
+    evaluated as rosdep does (an unset variable is the empty string)."""
+    for clause in re.split(r'\s+and\s+', cond.strip()):
+        m = re.fullmatch(r'\s*\$(\w+)\s*(==|!=)\s*(\w+)\s*', clause)
+        assert m, 'condition this test cannot evaluate: %r' % cond
+        if (env.get(m.group(1), '') == m.group(3)) != (m.group(2) == '=='):
+            return False
+    return True
+
+
+def declared(env=None):
+    """{tag: set of keys} of package.xml, conditions evaluated as on Noetic (or in ``env``)."""
     root = ET.parse(os.path.join(REPO, 'package.xml')).getroot()
     assert root.tag == 'package' and root.get('format') == '3'
     deps = {}
@@ -43,11 +64,8 @@ def declared():
         if not el.tag.endswith('depend'):
             continue
         cond = el.get('condition')
-        if cond is not None:
-            m = re.fullmatch(r'\s*\$(\w+)\s*(==|!=)\s*(\w+)\s*', cond)
-            assert m, 'condition this test cannot evaluate: %r' % cond
-            if (ENV.get(m.group(1), '') == m.group(3)) != (m.group(2) == '=='):
-                continue
+        if cond is not None and not condition_holds(cond, ENV if env is None else env):
+            continue
         tags = {'depend': ['build_depend', 'exec_depend']}.get(el.tag, [el.tag])
         for t in tags:
             deps.setdefault(t, set()).add(el.text.strip())
@@ -211,10 +229,79 @@ def test_license_urls_and_maintainer():
 
 @pytest.mark.parametrize('condition,expected', [('$ROS_PYTHON_VERSION == 3', True),
                                                 ('$ROS_PYTHON_VERSION == 2', False),
-                                                ('$ROS_PYTHON_VERSION != 2', True)])
+                                                ('$ROS_PYTHON_VERSION != 2', True),
+                                                ('$MULTI_MAP_MERGE_SIDE != robot', True),
+                                                ('$ROS_PYTHON_VERSION == 3 and $MULTI_MAP_MERGE_SIDE != robot', True),
+                                                ('$ROS_PYTHON_VERSION == 2 and $MULTI_MAP_MERGE_SIDE != robot', False)])
 def test_the_condition_reader(tmp_path, monkeypatch, condition, expected):
     """The evaluator above drops a dependency whose condition is false on Noetic."""
     (tmp_path / 'package.xml').write_text(
         '<package format="3"><exec_depend condition="%s">python3-numpy</exec_depend></package>' % condition)
     monkeypatch.setattr(sys.modules[__name__], 'REPO', str(tmp_path))
     assert ('python3-numpy' in declared().get('exec_depend', set())) == expected
+
+
+def all_keys(deps):
+    return set().union(*deps.values())
+
+
+def test_a_robot_needs_only_the_keys_of_what_it_runs():
+    """MULTI_MAP_MERGE_SIDE=robot: rosdep sees the relays', gmapping's and robot_state_publisher's
+    keys, none of the base station's (rviz, OpenCV, numpy, scipy, xvfb, ...); unset (every other
+    machine, bloom, the build farm) it sees them all."""
+    robot, base = declared(ROBOT_ENV), declared()
+    assert all_keys(robot) == ROBOT_KEYS
+    assert ROBOT_KEYS < all_keys(base)
+    for heavy in ('rviz', 'python3-opencv', 'python3-numpy', 'python3-scipy', 'xvfb', 'python_qt_binding',
+                  'xacro', 'turtlebot3_description', 'python3-pytest'):
+        assert heavy in all_keys(base) and heavy not in all_keys(robot), heavy
+    # building the package on a robot: catkin_make needs its buildtool, build and (CMakeLists.txt's
+    # find_package(rostest) under CATKIN_ENABLE_TESTING) rostest
+    assert robot['buildtool_depend'] == {'catkin'} and robot['build_depend'] == {'python3-setuptools'}
+    assert robot['test_depend'] == {'rostest'}
+
+
+def test_what_a_robot_runs_imports_only_its_keys():
+    paths = [os.path.join(REPO, p) for p in ROBOT_CODE]
+    assert all(os.path.isfile(p) for p in paths), paths
+    run = declared(ROBOT_ENV)['exec_depend']
+    mods = third_party(paths)
+    unknown = sorted(set(mods) - set(MODULE_KEYS))
+    assert not unknown, {m: mods[m] for m in unknown}
+    missing = {m: MODULE_KEYS[m] for m in mods if MODULE_KEYS[m] not in run}
+    assert not missing, 'a robot runs code importing these, not declared for MULTI_MAP_MERGE_SIDE=robot: %s' % missing
+    # the relays' chain imports only its own package's modules besides these
+    own = {m for p in paths for m, _ in imports(p) if m == OWN}
+    assert own == {OWN}
+
+
+def test_the_nodes_started_on_a_robot_are_robot_keys():
+    """Every <node machine="..."> of the launch files (slam_on:=robot starts it on the robot over
+    ssh) is of a package a robot has, and of ours only the relays."""
+    run = declared(ROBOT_ENV)['exec_depend']
+    relays = {os.path.basename(p) for p in ROBOT_CODE if p.startswith('scripts/')}
+    seen = set()
+    for f in glob.glob(os.path.join(REPO, 'launch', '**', '*.launch'), recursive=True):
+        for el in ET.parse(f).getroot().iter('node'):
+            if el.get('machine') is None:
+                continue
+            seen.add((el.get('pkg'), el.get('type')))
+            if el.get('pkg') == OWN:
+                assert el.get('type') in relays, (f, el.attrib)
+            else:
+                assert el.get('pkg') in run, '%s starts %s/%s on a robot: not a robot-side key' % (
+                    os.path.relpath(f, REPO), el.get('pkg'), el.get('type'))
+    assert {('gmapping', 'slam_gmapping'), ('robot_state_publisher', 'robot_state_publisher'),
+            (OWN, 'scan_frame_relay')} <= seen, seen
+
+
+def test_rosdep_evaluates_the_conditions_as_this_test_does():
+    """catkin_pkg's own evaluation (what rosdep calls: Package.evaluate_conditions(os.environ))
+    gives the same two lists."""
+    package = pytest.importorskip('catkin_pkg.package', reason='catkin_pkg is not installed')
+    for env in (ENV, ROBOT_ENV):
+        pkg = package.parse_package(os.path.join(REPO, 'package.xml'))
+        pkg.evaluate_conditions(env)
+        keys = {d.name for d in pkg.buildtool_depends + pkg.build_depends + pkg.exec_depends + pkg.test_depends
+                if d.evaluated_condition}
+        assert keys == all_keys(declared(env)), env
