@@ -595,7 +595,7 @@ class Condition:
             own[r] = best_score(g, truth, [starts[r]])
         details['own'] = own
         if bad:
-            for k in ('own', 'rigid', 'merged', 'mexplore', 'mrpt'):
+            for k in ('own', 'rigid', 'merged', 'merged_rigid', 'mexplore', 'mrpt'):
                 rows[k] = Invalid(group_reasons(bad))
         else:
             vals = [own[r]['fitness'] if 'fitness' in own[r] else Invalid(own[r]['invalid']) for r in TEAM]
@@ -618,6 +618,8 @@ class Condition:
             paths = [self.gm[r]['map'] for r in TEAM]
             # ours
             rows['merged'], counts['merged'], details['merged'] = self.merge_ours(paths, truth, starts)
+            # the same placements composited rigidly: what bending the maps (core/deform.py) gained
+            rows['merged_rigid'], details['merged_rigid'] = self.unbent(maps, details['merged'], truth, starts)
             if all(is_valid(v) for v in vals) and details['merged'].get('transforms'):
                 details['placements'] = placement_checks(details['merged']['transforms'], own, starts)
             # the peers
@@ -635,6 +637,7 @@ class Condition:
         cfg = os.path.join(out, 'config.yaml')
         with open(cfg, 'w') as f:
             f.write('workers: 1   # inline: the benchmark\'s job slots are its CPU budget\n')
+            f.write('bend_maps: %s\n' % ('false' if ARGS.unbent else 'true'))
         merged, tf = os.path.join(out, 'merged.yaml'), os.path.join(out, 'transforms.yaml')
         for p in (merged, tf):
             if os.path.exists(p):
@@ -652,6 +655,21 @@ class Condition:
         s['transforms'] = rep.get('maps')
         s['wall_s'] = r['wall_s']
         return (s['fitness'] if 'fitness' in s else Invalid(s['invalid'])), '%d/%d' % (n, len(paths)), s
+
+    def unbent(self, maps, merged, truth, starts):
+        """Our merge's placements (``merged``: merge_ours' details) composited rigidly and
+        scored as the merge is."""
+        import numpy as np
+
+        from multi_map_merge.core.transforms import se2
+        tf = merged.get('transforms') if isinstance(merged, dict) else None
+        if tf is None:
+            return Invalid('our merge failed'), {}
+        ref = TEAM[0]
+        poses = {ref: np.eye(3)}
+        poses.update({r: se2(v['x'], v['y'], v['yaw']) for r, v in tf.items() if v.get('merged')})
+        s = best_score(compose_maps(maps, poses, maps[ref], 'map'), truth, [starts[ref]])
+        return (s['fitness'] if 'fitness' in s else Invalid(s['invalid'])), s
 
     def merge_peer(self, peer, paths, maps, truth, starts):
         import numpy as np
@@ -1016,6 +1034,9 @@ def parse_args(argv: Optional[List[str]] = None):
     ap.add_argument('--jobs', type=int, default=2, help='heavy steps at once (1 or 2; default 2)')
     ap.add_argument('--port', type=int, default=12500, help='first port tried for the roscores (default 12500)')
     ap.add_argument('--no-build', action='store_true', help='do not build missing peers')
+    ap.add_argument('--unbent', action='store_true',
+                    help='our merge with bend_maps false (default: true; the row "ours, unbent" composites '
+                         'the same placements rigidly either way)')
     a = ap.parse_args(argv)
     if a.quick:
         a.seeds, a.worlds = 1, 'house'

@@ -12,10 +12,11 @@ from __future__ import annotations
 from typing import Any, Dict, List, Optional, Sequence, Union
 
 # the rows of a condition (one world, one seed), in the order they are printed
-ROWS = ('single', 'merged', 'own', 'rigid', 'starts', 'mexplore', 'mrpt')
+ROWS = ('single', 'merged', 'merged_rigid', 'own', 'rigid', 'starts', 'mexplore', 'mrpt')
 ROW_NAMES = {
     'single': 'single robot',
     'merged': 'merged team (ours)',
+    'merged_rigid': 'ours, unbent',
     'own': "robots' own maps (mean)",
     'rigid': 'rigid bound',
     'starts': 'team at its true starts',

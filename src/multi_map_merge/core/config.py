@@ -54,6 +54,8 @@ class MergeConfig:
     max_position_sigma: float = 0.1          # m: a placement whose 2-sigma position exceeds this is weakly pinned
     map_drift: float = 0.02                  # m per m from its origin a map's walls sit off (1 sigma, core/drift.py)
     map_drift_yaw: float = 0.4               # deg per sqrt(m) from a map's origin its walls sit turned (1 sigma)
+    bend_maps: bool = False                  # merged map: bend each placed map onto the others' walls (core/deform.py)
+    bend_node_spacing: float = 2.5           # m between a bent map's nodes
     # --- prior knowledge of where robots started (optional). A prior is the pose of a robot's map
     # frame in one frame common to all priors; only differences count (the merged frame is the
     # reference robot's map frame, and a link is checked against prior_ref^-1 * prior_robot) ---

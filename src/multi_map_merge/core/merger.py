@@ -24,7 +24,7 @@ from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
-from . import bend, corroborate, joint, links, placement, verify
+from . import bend, corroborate, deform, joint, links, placement, verify
 from .composite import Lattice, Patch, composite, lattice_for, warp_patch
 from .config import MergeConfig
 from .grid import DEFAULT_FREE_THRESH, DEFAULT_OCC_THRESH, Grid, rescale, same_grid
@@ -135,6 +135,9 @@ class MapMerger:
         self._merged = None       # (patch identities, merged grid) of the last compose
         self._graph_key = None    # the links the last pose-graph placement was made of
         self._joint_key = None    # the maps the last joint refinement was made of (_joint)
+        # bend_maps: per bent map, (the map's version it was fitted to, its correction field)
+        self._fields: Dict[str, Tuple[int, deform.Field]] = {}
+        self._fields_key = None   # the maps and placements the fields were fitted to (_bend)
         self.state_version = 0    # bumped whenever links or placements change (for persistence)
         self._prior_epoch = 0     # bumped when a prior changes: a cycle begun before is discarded
 
@@ -286,6 +289,8 @@ class MapMerger:
             self._results.clear()
             self._placements.clear()
             self._patches.clear()
+            self._fields.clear()
+            self._fields_key = None
 
     def _snapshot(self) -> Tuple[str, Dict[str, RobotMap]]:
         """(reference, maps at the reference's resolution); maps empty before the reference
@@ -322,6 +327,8 @@ class MapMerger:
         # links of little evidence that corroborate each other (a cycle closes): kept, placed again
         if self._corroborate(maps):
             events += self._place(maps, ref)
+        # (5) past rigid: every placed map bent onto the walls of the others, for the merged map
+        self._bend(maps, ref)
         return events
 
     def _corroborate(self, maps: Dict[str, RobotMap]) -> List[str]:
@@ -346,6 +353,7 @@ class MapMerger:
         ref, maps = self._snapshot()
         with self._lock:
             placements = dict(self._placements)
+            fields = dict(self._fields)
         if not maps:
             return None
         lattice = lattice_for(maps[ref].grid)
@@ -353,7 +361,11 @@ class MapMerger:
         for name, pl in sorted(placements.items()):
             m = maps.get(name)
             if m is not None:
-                patches.append(self._patch(m, pl.T, lattice))
+                # (a field is used only with the placement and map it was fitted to)
+                version, f = fields.get(name, (None, None))
+                if f is not None and not (version == m.version and np.array_equal(f.T, pl.T)):
+                    f = None
+                patches.append(self._patch(m, pl.T, lattice, f))
         key = tuple(id(p) for p in patches)
         if self._merged is not None and self._merged[0] == key:
             return self._merged[1]   # nothing moved or changed: the same merged grid
@@ -594,15 +606,43 @@ class MapMerger:
                 out[n] = dataclasses.replace(new[n], T=T, graph_T=anchors[n] if moved else None)
         return out
 
-    def _patch(self, m: RobotMap, T: np.ndarray, lattice: Lattice) -> Optional[Patch]:
-        key = (m.version, T.tobytes(), lattice.key())
+    def _bend(self, maps: Dict[str, RobotMap], ref: str) -> None:
+        """Fit the correction field of every placed map (:mod:`deform`) when ``bend_maps`` is
+        on and a map or a placement changed since they were fitted; a map whose field is not
+        fitted (it pairs with no other) is composited rigidly."""
+        c = self.config
+        if not c.bend_maps:
+            return
+        with self._lock:
+            placed = {n: p.T for n, p in self._placements.items() if n in maps}
+        key = (ref, tuple((n, maps[n].key, T.tobytes()) for n, T in sorted(placed.items())))
+        with self._lock:
+            if key == self._fields_key:
+                return
+        walls = {}
+        for n in placed:
+            g = maps[n].grid
+            walls[n] = deform.wall_points(g.levels(c.free_thresh, c.occupied_thresh), g.resolution, g.origin)
+        fields = deform.fit_fields(walls, placed, ref, c.bend_node_spacing, c.map_drift,
+                                   math.radians(c.map_drift_yaw))
+        with self._lock:
+            self._fields = {n: (maps[n].version, f) for n, f in fields.items()}
+            self._fields_key = key
+
+    def _patch(self, m: RobotMap, T: np.ndarray, lattice: Lattice,
+               field: Optional[deform.Field] = None) -> Optional[Patch]:
+        key = (m.version, T.tobytes(), lattice.key(), id(field) if field is not None else None)
         cached = self._patches.get(m.name)
         if cached is not None and cached[0] == key:
             return cached[1]
         c = self.config
         kv = m.grid.known_values(c.free_thresh, c.occupied_thresh)
-        p = None if kv is None else warp_patch(kv[1], kv[0], m.grid.resolution, m.grid.origin, T,
-                                               lattice, c.max_cells)
+        if kv is None:
+            p = None
+        elif field is not None:
+            p = deform.warp_field_patch(kv[1], kv[0], m.grid.resolution, m.grid.origin, field, lattice, c.max_cells)
+        else:
+            p = warp_patch(kv[1], kv[0], m.grid.resolution, m.grid.origin, T, lattice, c.max_cells)
         self._patches[m.name] = (key, p)
         return p
 

@@ -278,6 +278,8 @@ RULES: Dict[str, Tuple[Callable[[Any], Any], str]] = {
     'max_position_sigma': _float(0.0, None, lo_open=True),
     'map_drift': _float(0.0),
     'map_drift_yaw': _float(0.0),
+    'bend_maps': (_bool, 'true or false'),
+    'bend_node_spacing': _float(0.5, 1000.0),
     'stale_map_timeout': _float(0.0),
     'initial_poses': (_poses, 'a mapping robot: [x, y, yaw]'),
     'initial_pose_tolerance': (_tolerance, '[metres, radians]'),
