@@ -68,6 +68,8 @@ MIN_PAIRS = 50
 # a solution that moves any node further than this (metres) is not a bend but a failure (walls
 # paired with the wrong walls): no field at all then
 MAX_CORRECTION = 1.0
+# a map bent this far (metres, its largest node move) or more is named in its status message
+REPORT_BENT = 0.2
 # the inverse warp is computed every this many lattice cells and interpolated between (the field
 # is smooth over a node spacing, tens of cells)
 WARP_STEP = 4

@@ -109,6 +109,9 @@ class RobotStatus:
     # its verified links whose overlap bends (core/bend.py): (the other robot, metres the
     # overlap's halves land apart), at least bend.REPORT_BEND, largest first
     bends: Tuple[Tuple[str, float], ...] = ()
+    # bend_maps: metres the merged map moves its map's walls at most off its placement to meet
+    # the others' (core/deform.py: its field's largest node move); 0 when not bent
+    bent: float = 0.0
 
 
 class MapMerger:
@@ -411,8 +414,10 @@ class MapMerger:
                 bends = tuple(sorted(((b if a == n else a, e.bend) for (a, b), e in self._edges.items()
                                       if n in (a, b) and e.bend >= bend.REPORT_BEND), key=lambda x: -x[1]))
                 m = self._maps.get(n)
+                field = self._fields.get(n)
                 out[n] = RobotStatus(pl is not None, n == ref, pl, last, other, self._errors.get(n, ''), links,
-                                     covs, m.received if m is not None else None, bends)
+                                     covs, m.received if m is not None else None, bends,
+                                     field[1].largest() if field is not None else 0.0)
             return out
 
     def export_state(self) -> Dict:

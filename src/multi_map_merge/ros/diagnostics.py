@@ -11,6 +11,7 @@ from typing import Dict, List, Optional
 
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 
+from ..core.deform import REPORT_BENT
 from ..core.merger import RobotStatus
 from ..core.placement import PRIOR, Placement
 from ..core.state import placement_dict
@@ -106,6 +107,11 @@ def robot_diagnostic(robot: str, st: RobotStatus, gone: bool, now: float,
         s.message += '; ' + '; '.join("%s's map bends %.2f m across its overlap with %s" % (robot, m, other)
                                       for other, m in st.bends)
         kv += [('bends', ' '.join('%s:%.2f' % (other, m) for other, m in st.bends))]
+    if st.bent > 0.0:
+        # ~bend_maps: how far the merged map moves this map's walls off its (rigid) placement
+        kv += [('bent in the merged map (m)', '%.2f' % st.bent)]
+        if st.bent >= REPORT_BENT:
+            s.message += "; %s's map bent up to %.2f m in the merged map to meet the others" % (robot, st.bent)
     if gone:
         s.message += ' (vanished: no publisher of its map; its last map and transform are kept)'
         s.level = max(s.level, DiagnosticStatus.WARN)

@@ -144,6 +144,9 @@ def test_real_gmapping_maps_bent_fit_the_house_better_and_tf_stays(open3d):
             m.update_map(n, load_map(os.path.join(S2, n + '.yaml')))
         m.estimate()
         out[bend] = ({n: p.T for n, p in m.placements().items()}, score_map(m.compose(), truth, start).fitness)
+        bent = {n: st.bent for n, st in m.status().items()}
+        # the status says how far each map was bent (tb3_2's far rooms most: 0.37 m)
+        assert (max(bent.values()) > 0.2) if bend else not any(bent.values()), bent
     assert set(out[True][0]) == set(names)
     for n in names:
         assert np.array_equal(out[True][0][n], out[False][0][n])

@@ -285,3 +285,18 @@ def test_a_bent_overlap_is_named_in_the_robots_message():
     assert s.level == DiagnosticStatus.OK          # the bend is in the covariance, which sets weak
     assert values(s)['bends'] == 'tb3_0:0.43'
     assert 'bends' not in values(robot_diagnostic('tb3_1', merged(), False, NOW))
+
+
+def test_a_map_bent_in_the_merged_map_says_how_far():
+    """~bend_maps: the largest move of a map's walls in the merged map is a key; from
+    REPORT_BENT on it is named in the message (a note: TF, the placement, is not bent)."""
+    st = merged()
+    st.bent = 0.37
+    s = robot_diagnostic('tb3_2', st, False, NOW)
+    assert s.message == "merged via tb3_0; tb3_2's map bent up to 0.37 m in the merged map to meet the others"
+    assert s.level == DiagnosticStatus.OK
+    assert values(s)['bent in the merged map (m)'] == '0.37'
+    st.bent = 0.05
+    s = robot_diagnostic('tb3_2', st, False, NOW)
+    assert s.message == 'merged via tb3_0' and values(s)['bent in the merged map (m)'] == '0.05'
+    assert 'bent in the merged map (m)' not in values(robot_diagnostic('tb3_1', merged(), False, NOW))
