@@ -37,9 +37,11 @@ class Launch:
     def __init__(self, launch_file, config):
         self.lines = []
         self.lock = threading.Lock()
+        # rospy writes its INFO lines to stdout without flushing: into a pipe, unbuffered, or
+        # they come only when the node ends (its WARN lines go to stderr, unbuffered anyway)
         self.proc = subprocess.Popen(['roslaunch', launch_file, 'config:=' + config, 'output:=screen'],
                                      stdout=subprocess.PIPE, stderr=subprocess.STDOUT, universal_newlines=True,
-                                     start_new_session=True)
+                                     start_new_session=True, env=dict(os.environ, PYTHONUNBUFFERED='1'))
         threading.Thread(target=self._read, daemon=True).start()
 
     def _read(self):
