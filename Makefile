@@ -78,8 +78,11 @@ test: build gmapping
 	  [ $$r -eq 0 ] || { rc=1; tail -60 $(WS)/rostest.log; }; done; \
 	exit $$rc
 
+# DEMO_ARGS: run_demo's options, e.g. DEMO_ARGS=--lds02-driver (scans as ROBOTIS's LDS-02 driver
+# sends them, through each robot's scan_frame_relay); the DEMO_* environment settings pass as they are
+DEMO_ARGS ?=
 demo: build gmapping
-	@$(ROS_ENV) && cd $(CURDIR) && scripts/run_demo
+	@$(ROS_ENV) && cd $(CURDIR) && scripts/run_demo $(DEMO_ARGS)
 
 clean:
 	rm -rf $(WS) demo_output

@@ -30,7 +30,9 @@ from multi_map_merge.ros.tools import init_node
 
 ROBOTS = ['tb3_0', 'tb3_1']
 DURATION = 50.0      # s of the bag played: the robots' start rooms, enough to merge them
-RATE = 1.0          # gmapping keeps up on a shared 2-core machine (at 2x it falls behind: 82%)
+RATE = 0.5          # the three gmappings keep up on a shared 2-core machine: at 2x they fell behind
+                    # (82%); at 1x, under another job's load (load average 7-12), tb3_0's dropped
+                    # 26-32 of 251 scans from its queue while busy (219-225 reached, under 90%)
 
 
 class TestLds02DriverGmapping(unittest.TestCase):
@@ -68,7 +70,7 @@ class TestLds02DriverGmapping(unittest.TestCase):
                                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
                                   env=dict(os.environ, ROS_LOG_DIR=logs))
         try:
-            rec = record_replay(ROBOTS, period=0.5, idle=4.0, timeout=120.0)
+            rec = record_replay(ROBOTS, period=0.5, idle=4.0, timeout=60.0 + DURATION / RATE)
         finally:
             stop_launch(launch)
         self.assertIsNotNone(rec['clock'], 'no /clock: the bag did not play')

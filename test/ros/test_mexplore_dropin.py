@@ -13,7 +13,10 @@ Intel map at known poses) are published on /tb3_0/map, /tb3_1/map and, in a nest
 come out where m-explore's would (/map_merge/map, frame world) and every robot be placed by the
 TF world -> <robot>/map (team/tb3_2/map for the nested one, looked up through tf2) at its true
 pose. The node's log names each m-explore parameter it read and
-warns only about estimation_confidence (which has no equivalent here).
+warns only about estimation_confidence (which has no equivalent here). rviz's config for this
+launch file (``robots_rviz --node /map_merge/map_merge``) shows the topics the live node publishes
+(its markers, its merged map) and each robot's goal on its own move_base; the default config's
+markers (``/map_merge/markers``) are published by no one here.
 """
 import math
 import os
@@ -23,9 +26,11 @@ import tempfile
 import unittest
 import xml.etree.ElementTree as ET
 
+import rospkg
 import rospy
 import rostest
 import tf2_ros
+import yaml
 from rostest_helpers import DATA, NumpyGrid, RobotPlayer, data_file, lookup, make_pieces, stop_launch, wait_until
 
 from multi_map_merge.core.mapio import load_map
@@ -78,6 +83,7 @@ class TestMexploreDropin(unittest.TestCase):
                                     stderr=subprocess.STDOUT)
             try:
                 self._check(buf, truth, merged)
+                self._check_rviz(d)
             finally:
                 stop_launch(proc)
                 player._stop = True
@@ -117,6 +123,37 @@ class TestMexploreDropin(unittest.TestCase):
         msg = merged[-1]
         self.assertEqual(msg.header.frame_id, 'world')
         self.assertGreater(known(), 1.2 * max(self.piece_known), (known(), self.piece_known))
+
+    def _check_rviz(self, d):
+        """rviz for this launch file (robots_rviz --node /map_merge/map_merge, as the README says)
+        shows what the live node publishes: its markers, its merged map, every robot's map; each
+        robot's 2D Nav Goal goes to its own move_base. The config for our own launch file's node
+        name (the default, /map_merge) points at markers no node publishes here."""
+        published = dict(rospy.get_published_topics())
+
+        def written(*args):
+            path = os.path.join(d, 'rviz%d.rviz' % len(os.listdir(d)))
+            r = subprocess.run([sys.executable, os.path.join(rospkg.RosPack().get_path(PKG), 'scripts', 'robots_rviz'),
+                                '--robots', ' '.join(ROBOTS), '--write-only', '--output', path] + list(args),
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, universal_newlines=True)
+            self.assertEqual(r.returncode, 0, r.stderr)
+            with open(path) as f:
+                vm = yaml.safe_load(f)['Visualization Manager']
+            markers = [x['Marker Topic'] for x in vm['Displays'] if x['Class'] == 'rviz/MarkerArray']
+            maps = [x['Topic'] for x in vm['Displays'] if x['Class'] == 'rviz/Map']
+            goals = [t['Topic'] for t in vm['Tools'] if t['Class'] == 'rviz/SetGoal']
+            return markers, maps, goals
+        markers, maps, goals = written('--node', '/map_merge/map_merge')
+        print('rviz --node /map_merge/map_merge: markers %s, maps %s, goals %s' % (markers, maps, goals))
+        self.assertEqual(markers, ['/map_merge/map_merge/markers'])
+        self.assertEqual(published.get(markers[0]), 'visualization_msgs/MarkerArray', published)
+        self.assertEqual(maps, ['/map_merge/map'] + ['/%s/map' % r for r in ROBOTS])
+        for topic in maps:
+            self.assertEqual(published.get(topic), 'nav_msgs/OccupancyGrid', (topic, published))
+        self.assertEqual(goals, ['/%s/move_base_simple/goal' % r for r in ROBOTS])
+        markers, maps, _ = written()
+        self.assertEqual((markers, maps[0]), (['/map_merge/markers'], '/map'))
+        self.assertNotIn(markers[0], published)
 
     def _check_log(self, screen):
         lines = [ln for ln in screen.splitlines() if 'multi_map_merge: ' in ln]

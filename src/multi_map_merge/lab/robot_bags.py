@@ -81,8 +81,9 @@ def main(argv: Optional[List[str]] = None) -> int:
                          'the gyro as a Burger\'s does')
     ap.add_argument('--lds02-driver', action='store_true',
                     help='record the scans as ROBOTIS\'s LDS-02 driver for Noetic (ld08_driver) publishes them: '
-                         'each revolution of its own length, 0 for no point, range 0-100 m (scan_frame_relay '
-                         'makes them fit for gmapping); the truth and the SLAM model\'s maps are unchanged')
+                         'each revolution of its own length, 0 for no point, range 0-100 m, in frame base_scan '
+                         'whatever the robot (scan_frame_relay makes them fit for gmapping, in <robot>/base_scan, '
+                         'where the TF puts the laser); the truth and the SLAM model\'s maps are unchanged')
     a = ap.parse_args(argv)
     if a.robots < 1 or a.robots > 16:
         print('make_robot_bags: --robots must be 1..16', file=sys.stderr)
@@ -125,7 +126,9 @@ def main(argv: Optional[List[str]] = None) -> int:
         for run in team + ([lone] if lone is not None else []):
             run.scans = ld08_driver_scans(run.scans, shape_rng, cfg.scan_rate)
     t_sim = time.time() - t0
-    counts = write_robot_bag(base + '.bag', team, slam=not a.sensors_only)
+    # ld08_driver stamps its scans base_scan whatever its frame_id parameter says
+    scan_frame = 'base_scan' if a.lds02_driver else None
+    counts = write_robot_bag(base + '.bag', team, slam=not a.sensors_only, scan_frame=scan_frame)
     truth = {'world': os.path.relpath(world_path, os.path.dirname(os.path.abspath(base))),
              'source': ('carmen:' + os.path.basename(a.carmen)) if a.carmen else 'raycast',
              'seed': a.seed, 'scans': 'ld08_driver' if a.lds02_driver else 'fixed',
@@ -135,7 +138,7 @@ def main(argv: Optional[List[str]] = None) -> int:
              'bag': os.path.basename(base + '.bag'),
              'robots': {r.name: _run_info(r) for r in team}}
     if lone is not None and not a.no_single:
-        write_robot_bag(base + '_single.bag', [lone], slam=not a.sensors_only)
+        write_robot_bag(base + '_single.bag', [lone], slam=not a.sensors_only, scan_frame=scan_frame)
         truth['single'] = dict(_run_info(lone), bag=os.path.basename(base + '_single.bag'), name=lone.name)
     with open(base + '.truth.yaml', 'w') as f:
         f.write('# written by make_robot_bags: pose (x, y, yaw; m, rad) of each robot\'s map frame\n'

@@ -23,11 +23,13 @@ from .diagnostics import diagnostics_by_robot
 BAG_EPOCH = 1_600_000_000.0   # bag time of a simulated run's t = 0 (fixed: bags are reproducible)
 
 
-def write_robot_bag(path: str, runs, clock_rate: float = 10.0, slam: bool = True) -> Dict[str, int]:
+def write_robot_bag(path: str, runs, clock_rate: float = 10.0, slam: bool = True,
+                    scan_frame: Optional[str] = None) -> Dict[str, int]:
     """Write robots' runs (:class:`multi_map_merge.lab.simulate.RobotRun`) to a rosbag as real
     Turtlebot3s running gmapping record them, each robot under ``/<name>/``:
-    ``/<name>/scan`` (LaserScan, frame ``<name>/base_scan``; shaped as the run's scans are:
-    fixed beams, or ``ld08_driver``'s with :class:`multi_map_merge.lab.simulate.DriverScans`),
+    ``/<name>/scan`` (LaserScan, frame ``<name>/base_scan``, or ``scan_frame`` for every robot
+    when given: ``ld08_driver`` stamps ``base_scan`` whatever it is asked; shaped as the run's
+    scans are: fixed beams, or ``ld08_driver``'s with :class:`multi_map_merge.lab.simulate.DriverScans`),
     ``/<name>/odom`` (Odometry),
     ``/<name>/map`` (OccupancyGrid, frame ``<name>/map``), ``/tf`` (``<name>/odom ->
     <name>/base_footprint`` at the odometry rate, ``<name>/base_footprint -> <name>/base_scan``
@@ -83,7 +85,7 @@ def write_robot_bag(path: str, runs, clock_rate: float = 10.0, slam: bool = True
         for k, step in enumerate(sc.steps):
             t = float(run.t[step])
             m = NumpyScan()
-            m.header.stamp, m.header.frame_id = stamp(t), f_scan
+            m.header.stamp, m.header.frame_id = stamp(t), scan_frame or f_scan
             amin, ainc, ranges = sc.scan(k)
             m.angle_min, m.angle_increment = amin, ainc
             m.angle_max = amin + ainc * (len(ranges) - 1)

@@ -157,3 +157,24 @@ def test_the_merger_s_earlier_parameters_are_cleared(name):
     cfg = ROSLaunchConfig()
     XmlLoader().load(os.path.join(LAUNCH, name), cfg, argv=['bag:=/tmp/x.bag'], verbose=False)
     assert '/map_merge/' in cfg.clear_params, cfg.clear_params
+
+
+def test_every_node_that_loads_a_yaml_clears_its_parameters_first():
+    """Issue 32: clear_params where a YAML is loaded. Every <node> of the package's launch files
+    (launch/, launch/includes/, the test launch files) with a <rosparam command="load"> in it
+    has clear_params="true", so a parameter an earlier launch left under its name cannot win
+    over the YAML's (or its aliases)."""
+    import glob
+    import xml.etree.ElementTree as ET
+    files = sorted(glob.glob(os.path.join(LAUNCH, '*.launch')) + glob.glob(os.path.join(LAUNCH, 'includes', '*.launch'))
+                   + glob.glob(os.path.join(REPO, 'test', 'ros', '*.launch')))
+    loading = []
+    for path in files:
+        for node in ET.parse(path).getroot().iter('node'):
+            if any(r.get('command', 'load') == 'load' and r.get('file') for r in node.iter('rosparam')):
+                loading.append((os.path.relpath(path, REPO), node.get('name')))
+                assert node.get('clear_params') == 'true', (path, node.attrib)
+    # the merger, each robot's gmapping (and the test's second one, without the relay), move_base
+    assert ('launch/map_merge.launch', 'map_merge') in loading
+    assert ('launch/includes/gmapping_robot.launch', 'slam_gmapping') in loading
+    assert len(loading) >= 4, loading

@@ -42,3 +42,29 @@ def test_sensors_only_bags_carry_no_slam_output(runs, tmp_path, slam):
         assert (('%s/map' % n, '%s/odom' % n) in tf_pairs) == slam
         assert counts.get('/%s/map' % n, 0) == (len(r.maps) if slam else 0)
     assert '/clock' in topics
+
+
+def test_lds02_driver_bags_stamp_their_scans_base_scan(tmp_path):
+    """make_robot_bags --lds02-driver: scans as ld08_driver publishes them, also in its frame:
+    "base_scan" for every robot (the driver ignores the frame it is given), lengths varying,
+    range 0-100 m; the TF still puts the laser at <robot>/base_scan, as each robot's
+    robot_state_publisher does (tf_prefix), which scan_frame_relay republishes the scans in."""
+    from multi_map_merge.lab.robot_bags import main
+    out = str(tmp_path / 'driver.bag')
+    assert main(['-o', out, '--robots', '2', '--seed', '2', '--no-single', '--sensors-only', '--lds02-driver']) == 0
+    frames, lengths, limits = set(), set(), set()
+    with rosbag.Bag(out) as bag:
+        for _, msg, _ in bag.read_messages(topics=['/tb3_0/scan', '/tb3_1/scan']):
+            frames.add(msg.header.frame_id)
+            lengths.add(len(msg.ranges))
+            limits.add((msg.range_min, msg.range_max))
+    assert frames == {'base_scan'}
+    assert len(lengths) > 10 and limits == {(0.0, 100.0)}
+    _, tf_pairs = _contents(out)
+    assert {('tb3_0/base_footprint', 'tb3_0/base_scan'), ('tb3_1/base_footprint', 'tb3_1/base_scan')} <= tf_pairs
+    # without the option: each robot's scans in its own <robot>/base_scan, as before
+    out = str(tmp_path / 'fixed.bag')
+    assert main(['-o', out, '--robots', '2', '--seed', '2', '--no-single', '--sensors-only']) == 0
+    with rosbag.Bag(out) as bag:
+        assert {m.header.frame_id for _, m, _ in bag.read_messages(topics=['/tb3_0/scan', '/tb3_1/scan'])} \
+            == {'tb3_0/base_scan', 'tb3_1/base_scan'}

@@ -34,8 +34,8 @@ def free_port():
         return s.getsockname()[1]
 
 
-def run(script, *args, cwd=None):
-    env = dict(os.environ, ROS_MASTER_URI='http://127.0.0.1:%d' % free_port())
+def run(script, *args, cwd=None, **extra_env):
+    env = dict(os.environ, ROS_MASTER_URI='http://127.0.0.1:%d' % free_port(), **extra_env)
     env.pop('DEMO_OUTPUT', None)
     p = subprocess.run([os.path.join(SCRIPTS, script)] + list(args), stdout=subprocess.PIPE,
                        stderr=subprocess.PIPE, universal_newlines=True, env=env, cwd=cwd, timeout=60)
@@ -70,3 +70,11 @@ def test_map_merge_node_refuses_an_unknown_option():
     pytest.importorskip('rospy')
     rc, out, err = run('map_merge_node', '--rate', '2')
     assert rc == 2 and 'unrecognized arguments: --rate 2' in err, (rc, out, err)
+
+
+def test_run_demo_lds02_driver_needs_live_gmapping(tmp_path):
+    """--lds02-driver on the fallback path (maps recorded earlier, of fixed scans) is an error
+    that says why, before anything starts or is written."""
+    rc, out, err = run('run_demo', '--lds02-driver', cwd=str(tmp_path), DEMO_GMAPPING='0')
+    assert rc == 1 and '--lds02-driver needs live gmapping (DEMO_GMAPPING=0)' in err and out == '', (rc, out, err)
+    assert os.listdir(str(tmp_path)) == []

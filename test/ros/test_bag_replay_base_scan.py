@@ -1,0 +1,125 @@
+#!/usr/bin/env python3
+"""rostest: ``bag_replay.launch slam:=gmapping`` on a bag recorded as real LDS-02 robots record
+it: ROBOTIS's ``ld08_driver`` stamps every scan ``base_scan`` whatever the robot, while the TF
+(each robot's robot_state_publisher, ``tf_prefix``) puts the laser at ``tb3_0/base_scan``.
+
+make_robot_bags writes one robot's sensors in the AWS house with ``--lds02-driver`` (its scans in
+frame ``base_scan``). The bag is replayed twice from ``START`` s on, ``PLAY`` s each time, with
+the roslaunch logs written under a directory of the test's:
+
+- as shipped (``fix_scan_frame`` true): ``scan_frame_relay`` logs that it republishes
+  ``/tb3_0/scan`` from frame "base_scan" in "tb3_0/base_scan" (and resamples it), and the
+  robot's gmapping publishes ``/tb3_0/map`` in frame ``tb3_0/map`` with walls in it;
+- with ``fix_scan_frame:=false`` (what ``bag_replay.launch`` did before issue 32: no relay),
+  gmapping processes no scan (no ``update frame`` line) and publishes no map: its tf
+  MessageFilter holds every scan, whose frame ``base_scan`` is in no TF tree, and drops it. The
+  only word of it (printed, not asserted: it comes after 15 s of wall time) is tf's
+  ``MessageFilter [target=tb3_0/odom ]: Dropped 100.00% of messages so far``, on roslaunch's
+  screen, which names neither the frame nor the fix. That was the silent mistake.
+Skips where ROS has no gmapping."""
+import glob
+import os
+import re
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+import unittest
+
+import numpy as np
+import rospkg
+import rospy
+import rostest
+from nav_msgs.msg import OccupancyGrid
+from rostest_helpers import skip_without_gmapping, stop_launch
+
+START = 60.0     # s into the bag: the robot is driving
+PLAY = 25.0      # s of wall time each replay is given (rate 1)
+RELAY_LINE = re.compile(r'scan_frame_relay: scans of /tb3_0/scan in frame "base_scan" republished on '
+                        r'/tb3_0/scan_framed in "tb3_0/base_scan"')
+RESAMPLED = 'scan_frame_relay: /tb3_0/scan for gmapping:'
+UPDATE = re.compile(r'^update frame \d+', re.M)   # gmapping processed a scan
+
+
+def log_text(log_dir):
+    """Everything roslaunch and its nodes wrote under ``log_dir`` (any depth)."""
+    text = []
+    for p in sorted({os.path.realpath(p) for p in glob.glob(os.path.join(log_dir, '**', '*.log'), recursive=True)}):
+        with open(p, errors='replace') as f:
+            text.append(f.read())
+    return '\n'.join(text)
+
+
+class TestBagReplayBaseScan(unittest.TestCase):
+
+    @classmethod
+    def setUpClass(cls):
+        rospy.init_node('test_bag_replay_base_scan', anonymous=True)
+        cls.lock = threading.Lock()
+        cls.maps = []
+        rospy.Subscriber('/tb3_0/map', OccupancyGrid, cls._on_map, queue_size=5)
+
+    @classmethod
+    def _on_map(cls, msg):
+        with cls.lock:
+            cls.maps.append(msg)
+
+    def replay(self, bag, log_dir, *args):
+        """Play the bag through bag_replay.launch slam:=gmapping for PLAY s; the maps seen."""
+        with self.lock:
+            del self.maps[:]
+        os.makedirs(log_dir)
+        # roslaunch's own output (the nodes' stderr, where roscpp's warnings go) beside the logs
+        with open(os.path.join(log_dir, 'roslaunch-screen.log'), 'w') as screen:
+            launch = subprocess.Popen(
+                ['roslaunch', 'multi_map_merge', 'bag_replay.launch', 'bag:=' + bag, 'slam:=gmapping',
+                 'robot_count:=1', 'rviz:=false', 'output:=log', 'start:=%g' % START] + list(args),
+                stdout=screen, stderr=subprocess.STDOUT, start_new_session=True,
+                env=dict(os.environ, ROS_LOG_DIR=log_dir))
+            try:
+                time.sleep(PLAY)
+            finally:
+                stop_launch(launch)
+        with self.lock:
+            return list(self.maps)
+
+    def test_base_scan_bags_map_only_through_the_relay(self):
+        skip_without_gmapping(self)
+        pkg = rospkg.RosPack().get_path('multi_map_merge')
+        tmp = tempfile.mkdtemp(prefix='mmm_base_scan_')
+        bag = os.path.join(tmp, 'real.bag')
+        r = subprocess.run([sys.executable, os.path.join(pkg, 'scripts', 'make_robot_bags'), '-o', bag,
+                            '--robots', '1', '--seed', '2', '--no-single', '--sensors-only', '--lds02-driver'],
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, universal_newlines=True)
+        self.assertEqual(r.returncode, 0, r.stderr)
+
+        # as shipped: the relay says what it does, gmapping maps
+        maps = self.replay(bag, os.path.join(tmp, 'relay'))
+        text = log_text(os.path.join(tmp, 'relay'))
+        self.assertRegex(text, RELAY_LINE)
+        self.assertIn(RESAMPLED, text)
+        self.assertRegex(text, UPDATE)
+        self.assertTrue(maps, 'gmapping published no /tb3_0/map through the relay')
+        last = maps[-1]
+        cells = np.asarray(last.data, np.int16)
+        print('relay: %d maps, the last %dx%d in %s, %d occupied and %d free cells'
+              % (len(maps), last.info.width, last.info.height, last.header.frame_id,
+                 int((cells > 50).sum()), int((cells == 0).sum())))
+        self.assertEqual(last.header.frame_id, 'tb3_0/map')
+        self.assertGreater(int((cells > 50).sum()), 200)
+        self.assertGreater(int((cells == 0).sum()), 2000)
+
+        # no relay (bag_replay.launch before issue 32): gmapping uses no scan, makes no map
+        maps = self.replay(bag, os.path.join(tmp, 'norelay'), 'fix_scan_frame:=false')
+        text = log_text(os.path.join(tmp, 'norelay'))
+        warnings = [ln for ln in text.splitlines() if 'WARN' in ln and 'TF_REPEATED_DATA' not in ln]
+        print('no relay: %d maps, %d scans processed; warnings: %s'
+              % (len(maps), len(UPDATE.findall(text)), warnings[:5]))
+        self.assertEqual(maps, [])
+        self.assertIsNone(UPDATE.search(text), 'gmapping processed a scan in frame base_scan')
+        self.assertNotIn('scan_frame_relay', text)
+
+
+if __name__ == '__main__':
+    rostest.rosrun('multi_map_merge', 'bag_replay_base_scan', TestBagReplayBaseScan, sys.argv)
