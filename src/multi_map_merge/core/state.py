@@ -6,7 +6,7 @@ On reload the links are *restored, not trusted*: each is verified again on the r
 when both maps have arrived, and dropped if it no longer agrees. The file is written
 atomically (temporary file + rename), so a crash never leaves half a file.
 
-Not to be confused with ``merge_maps --transforms``' file (:func:`offline.transforms_report`,
+Not to be confused with ``merge_maps --transforms``' file (:func:`merge_maps.transforms_report`,
 read by ``evaluate_map --transforms``): every map frame's pose in the merged frame, for people
 and scripts; the merger never reads it back.
 """

@@ -147,7 +147,7 @@ def publish_maps_main(argv: Optional[List[str]] = None) -> int:
     """``publish_maps tb3_0:A.yaml tb3_1:B.yaml ... [--steps 4] [--period 2]``: publish saved
     maps on /<robot>/map as gmapping robots would (latched, growing), for demos and tests
     without robots."""
-    from ..core.cli import parser
+    from ..cli.args import parser
     ap = parser('publish_maps', publish_maps_main.__doc__)
     ap.add_argument('maps', nargs='+', help='robot:map.yaml pairs')
     ap.add_argument('--steps', type=int, default=4, help='growth steps before the whole map')
@@ -168,7 +168,7 @@ def publish_maps_main(argv: Optional[List[str]] = None) -> int:
 def save_map_main(argv: Optional[List[str]] = None) -> int:
     """``save_map -f merged [--topic /map] [--timeout 30]``: save the next OccupancyGrid on a
     topic as map_server files (map_saver is not in Debian)."""
-    from ..core.cli import parser
+    from ..cli.args import parser
     ap = parser('save_map', save_map_main.__doc__)
     ap.add_argument('-f', '--file', default='map', help='output base name (writes .pgm and .yaml)')
     ap.add_argument('--topic', default='/map')

@@ -8,7 +8,7 @@ import pytest
 import yaml
 from conftest import DATA, REPO, pose_error, truth
 
-from multi_map_merge.core import offline as cli
+from multi_map_merge.cli import merge_maps as cli
 from multi_map_merge.core.mapio import load_map, save_map
 from multi_map_merge.core.merger import MapMerger
 from multi_map_merge.core.transforms import se2

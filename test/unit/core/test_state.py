@@ -1,8 +1,8 @@
 """A placement as plain data (core.state.placement_dict), written the same way by the state
-file (MapMerger.export_state) and merge_maps' transforms file (offline.transforms_report)."""
+file (MapMerger.export_state) and merge_maps' transforms file (cli.merge_maps.transforms_report)."""
 import math
 
-from multi_map_merge.core.offline import transforms_report
+from multi_map_merge.cli.merge_maps import transforms_report
 from multi_map_merge.core.state import load_state, placement_dict, save_state
 
 

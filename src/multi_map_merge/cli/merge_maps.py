@@ -19,11 +19,11 @@ from typing import Dict, List, Optional
 
 import yaml
 
-from .cli import parser
-from .config import MergeConfig
-from .mapio import MapFileError, load_map, save_map
-from .merger import MapMerger
-from .state import placement_dict
+from ..core.config import MergeConfig
+from ..core.mapio import MapFileError, load_map, save_map
+from ..core.merger import MapMerger
+from ..core.state import placement_dict
+from .args import parser
 
 # digits a placement's numbers are written with in the transforms file
 DIGITS = {'x': 6, 'y': 6, 'yaw': 6, 'inlier_ratio': 4, 'agreement': 4}
