@@ -27,10 +27,11 @@ import numpy as np
 from . import bend, corroborate, deform, joint, links, placement, verify
 from .composite import Lattice, Patch, composite, lattice_for, warp_patch
 from .config import MergeConfig
-from .grid import DEFAULT_FREE_THRESH, DEFAULT_OCC_THRESH, Grid, rescale, same_grid
+from .grid import DEFAULT_FREE_THRESH, DEFAULT_OCC_THRESH, Grid, same_grid
 from .links import Edge
 from .pair import PairResult, align_pair
 from .placement import Placement
+from .robot_map import RobotMap
 from .state import link_dict, link_from_dict, placement_dict
 from .transforms import image_to_pose, inverse, pose_distance, se2
 from .workers import PairWorkers
@@ -64,29 +65,6 @@ class ReferenceChoice:
     fixed: bool
     why: str                           # REF_PARAMETER, REF_PROPOSED or REF_FIRST_BY_NAME
     with_maps: Tuple[str, ...] = ()    # the robots with a map, by name
-
-
-@dataclass
-class RobotMap:
-    """The latest grid of one robot. ``grid`` is at the merger's working resolution (the
-    reference's): a map of another resolution is rescaled, not rejected."""
-
-    name: str
-    raw: Grid           # as received
-    version: int
-    received: float     # seconds (time.time()) when it arrived
-    grid: Grid = None   # type: ignore[assignment]  # working-resolution grid, set by at()
-    life: int = 0       # how often the robot was forgotten (map restarts) before this map
-
-    @property
-    def key(self) -> tuple:
-        """What anything derived from the working grid is cached under: (version, resolution)."""
-        return self.version, self.grid.resolution
-
-    def at(self, resolution: float) -> 'RobotMap':
-        if self.grid is None or abs(self.grid.resolution - resolution) > 1e-9:
-            self.grid = rescale(self.raw, resolution)
-        return self
 
 
 @dataclass
@@ -304,7 +282,7 @@ class MapMerger:
         if ref not in maps:
             return ref, {}
         res = maps[ref].raw.resolution
-        return ref, {n: m.at(res) for n, m in maps.items()}
+        return ref, {n: m.set_working_resolution(res) for n, m in maps.items()}
 
     # ------------------------------------------------------------------ the algorithm
     def estimate(self) -> List[str]:
@@ -518,9 +496,9 @@ class MapMerger:
                                     time.time(), r.overlap, r.cov, r.bend, r.centre)
             self.state_version += 1
 
-    def align_pair(self, pa: RobotMap, ch: RobotMap, seed: int = 0) -> PairResult:
-        """Steps (2)-(4) for one pair, here in this process (:func:`pair.align_pair`): cells of
-        ``ch`` -> cells of ``pa``."""
+    def align_robots(self, pa: RobotMap, ch: RobotMap, seed: int = 0) -> PairResult:
+        """Steps (2)-(4) for two robots' maps, here in this process (:func:`pair.align_pair` of
+        their crops and features): cells of ``ch`` -> cells of ``pa``."""
         return align_pair(self.config, self._workers.input(pa), self._workers.input(ch), seed)
 
     def _place(self, maps: Dict[str, RobotMap], ref: str) -> List[str]:
