@@ -28,7 +28,7 @@ from . import bend, corroborate, deform, joint, links, placement, verify
 from .composite import Lattice, Patch, composite, lattice_for, warp_patch
 from .config import MergeConfig
 from .grid import DEFAULT_FREE_THRESH, DEFAULT_OCC_THRESH, Grid, same_grid
-from .links import Edge
+from .links import Link
 from .pair import PairResult, align_pair
 from .placement import Placement
 from .robot_map import RobotMap
@@ -105,14 +105,14 @@ class MapMerger:
         self._reference_fixed = bool(c.reference_robot)   # decide_reference: settled for good
         self._reference_why = REF_PARAMETER if c.reference_robot else REF_FIRST_BY_NAME
         self._workers = PairWorkers(c)   # crops and features of the maps, the worker pool
-        self._edges: Dict[Tuple[str, str], Edge] = {}
+        self._edges: Dict[Tuple[str, str], Link] = {}
         self._tried: Dict[Tuple[str, str], Tuple[int, int]] = {}
         self._results: Dict[Tuple[str, str], PairResult] = {}
         self._placements: Dict[str, Placement] = {}
         self._patches: Dict[str, Tuple[tuple, Optional[Patch]]] = {}
         self._lives: Dict[str, int] = {}   # per robot: how often it was forgotten
         self._errors: Dict[str, str] = {}
-        self._restored: Dict[Tuple[str, str], Edge] = {}
+        self._restored: Dict[Tuple[str, str], Link] = {}
         self._merged = None       # (patch identities, merged grid) of the last compose
         self._graph_key = None    # the links the last pose-graph placement was made of
         self._joint_key = None    # the maps the last joint refinement was made of (_joint)
@@ -359,9 +359,9 @@ class MapMerger:
         with self._lock:
             return dict(self._placements)
 
-    def links(self) -> Dict[Tuple[str, str], Edge]:
+    def links(self) -> Dict[Tuple[str, str], Link]:
         """The verified links kept, per pair (parent, child): what the placements are made of
-        (an :class:`Edge` maps metres of the child's frame to the parent's)."""
+        (an :class:`Link` maps metres of the child's frame to the parent's)."""
         with self._lock:
             return dict(self._edges)
 
@@ -492,7 +492,7 @@ class MapMerger:
         with self._lock:
             if self._edges.get(key) is not old:
                 return               # forgotten (reset, map restart) meanwhile
-            self._edges[key] = Edge(pa.name, ch.name, T, inlier_ratio, r.agreement, inliers, r.matches,
+            self._edges[key] = Link(pa.name, ch.name, T, inlier_ratio, r.agreement, inliers, r.matches,
                                     time.time(), r.overlap, r.cov, r.bend, r.centre)
             self.state_version += 1
 

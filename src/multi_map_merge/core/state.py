@@ -20,12 +20,12 @@ import numpy as np
 import yaml
 
 from . import covariance
-from .links import Edge
+from .links import Link
 from .placement import Placement
 from .transforms import se2, xyyaw
 
 
-def link_dict(e: Edge) -> Dict[str, Any]:
+def link_dict(e: Link) -> Dict[str, Any]:
     """A verified link as plain data (the state file's ``edges``): x, y, yaw (metres, radians:
     the pose of the child's map frame in the parent's), parent, child, inlier_ratio,
     agreement, inliers, matches, bend (metres its overlap's halves land apart, :mod:`bend`; 0
@@ -38,12 +38,12 @@ def link_dict(e: Edge) -> Dict[str, Any]:
             'centre': None if e.centre is None else [float(v) for v in e.centre], **cov_fields(e.cov)}
 
 
-def link_from_dict(d: Dict[str, Any], stamp: float) -> Edge:
+def link_from_dict(d: Dict[str, Any], stamp: float) -> Link:
     """The link of :func:`link_dict`'s data (received at ``stamp``); files written before the
     inlier ratio had its name say ``reliability``: both are read. Raises KeyError, TypeError
     or ValueError when ``d`` is not such data."""
     ratio = d['inlier_ratio'] if 'inlier_ratio' in d else d['reliability']
-    e = Edge(str(d['parent']), str(d['child']), se2(float(d['x']), float(d['y']), float(d['yaw'])),
+    e = Link(str(d['parent']), str(d['child']), se2(float(d['x']), float(d['y']), float(d['yaw'])),
              float(ratio), float(d['agreement']), int(d['inliers']), int(d.get('matches', 0)), stamp)
     if d.get('cov') is not None:   # files written before links had a covariance have none
         e.cov = np.array([float(v) for v in d['cov']]).reshape(3, 3)

@@ -28,11 +28,11 @@ def test_one_placement_reads_the_same_in_the_state_file_and_the_transforms_file(
 def test_a_link_survives_the_state_file_and_old_files_are_read():
     import numpy as np
 
-    from multi_map_merge.core.links import Edge
+    from multi_map_merge.core.links import Link
     from multi_map_merge.core.merger import MapMerger
     from multi_map_merge.core.state import link_dict, link_from_dict
     from multi_map_merge.core.transforms import se2
-    e = Edge('a', 'b', se2(1.5, -0.25, 2.0), 0.4, 0.97, 33, 80, 0.0)
+    e = Link('a', 'b', se2(1.5, -0.25, 2.0), 0.4, 0.97, 33, 80, 0.0)
     d = link_dict(e)
     back = link_from_dict(d, 5.0)
     assert np.allclose(back.T, e.T) and back.stamp == 5.0
