@@ -6,9 +6,9 @@ On reload the links are *restored, not trusted*: each is verified again on the r
 when both maps have arrived, and dropped if it no longer agrees. The file is written
 atomically (temporary file + rename), so a crash never leaves half a file.
 
-Not to be confused with ``merge_maps --transforms``' file (:func:`merge_maps.transforms_report`,
-read by ``evaluate_map --transforms``): every map frame's pose in the merged frame, for people
-and scripts; the merger never reads it back.
+Not to be confused with the transforms report that ``merge_maps --transforms`` writes
+(:mod:`report`, read by ``evaluate_map --transforms``): every map frame's pose in the merged
+frame, for people and scripts; the merger never reads it back.
 """
 from __future__ import annotations
 
@@ -55,7 +55,7 @@ def link_from_dict(d: Dict[str, Any], stamp: float) -> Link:
 
 def placement_dict(pl: Placement) -> Dict[str, Any]:
     """A placement as plain data, the one form of it everywhere (the state file, merge_maps'
-    transforms file, /diagnostics): x, y, yaw (metres, radians: the pose of the robot's map
+    transforms report, /diagnostics): x, y, yaw (metres, radians: the pose of the robot's map
     frame in the merged frame), inlier_ratio, agreement, inliers (the weakest along its chain),
     via (the robot it is linked through, '' for the reference), chain (reference ... robot),
     weak (2-sigma position over ``max_position_sigma``) and its covariance (:func:`cov_fields`)."""

@@ -44,7 +44,7 @@ MERGED_KEYS = {'merged', 'x', 'y', 'yaw', 'inlier_ratio', 'inliers', 'agreement'
 
 
 def check_report(report, ps, stems):
-    """The transforms file's exact shape (README: reference, maps: {stem: {merged, x, y, yaw,
+    """The transforms report's exact shape (README: reference, maps: {stem: {merged, x, y, yaw,
     inlier_ratio, agreement, inliers, via, chain, weak, sigma_position, cov}}, links) and every
     pose against the truth."""
     assert set(report) == {'reference', 'maps', 'links'} and report['reference'] == stems[0]

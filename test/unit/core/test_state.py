@@ -1,12 +1,12 @@
 """A placement as plain data (core.state.placement_dict), written the same way by the state
-file (MapMerger.export_state) and merge_maps' transforms file (cli.merge_maps.transforms_report)."""
+file (MapMerger.export_state) and merge_maps' transforms report (report.transforms_report)."""
 import math
 
-from multi_map_merge.cli.merge_maps import transforms_report
+from multi_map_merge.core.report import transforms_report
 from multi_map_merge.core.state import load_state, placement_dict, save_state
 
 
-def test_one_placement_reads_the_same_in_the_state_file_and_the_transforms_file(halves_merged, tmp_path):
+def test_one_placement_reads_the_same_in_the_state_file_and_the_transforms_report(halves_merged, tmp_path):
     m = halves_merged
     d = placement_dict(m.placements()['b'])
     assert set(d) == {'x', 'y', 'yaw', 'inlier_ratio', 'agreement', 'inliers', 'via', 'chain', 'weak',

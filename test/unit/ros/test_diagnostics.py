@@ -106,8 +106,8 @@ def test_fills_diagnostic_updaters_status_and_reads_back_by_robot():
 
 
 def test_a_placement_on_diagnostics_reads_as_placement_dict(halves_merged):
-    """A placement there reads as core.state.placement_dict says, as in the state and
-    transforms files."""
+    """A placement there reads as core.state.placement_dict says, as in the state file and
+    the transforms report."""
     from multi_map_merge.core.state import placement_dict
     m = halves_merged
     pl = m.placements()['b']
