@@ -1,4 +1,4 @@
-"""Steps 2-4 for one pair of maps, as plain functions of plain data, so that they can run in
+"""Steps (2)-(4) (docs/design.md) for one pair of maps, as plain functions of plain data, so that they can run in
 worker processes (see :mod:`merger`): match, RANSAC, verify on the grids, refine.
 
 Worker processes keep the estimation's Python work off the node's interpreter: threads would

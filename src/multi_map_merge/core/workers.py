@@ -1,4 +1,4 @@
-"""Steps (1)-(4) of many pairs in worker processes, and what a merger derives once per map.
+"""Steps (1)-(4) (docs/design.md) of many pairs in worker processes, and what a merger derives once per map.
 
 Processes, not threads: estimation is partly pure Python, and in threads it would hold the GIL
 that the node's /map and TF timers need (and two threads ran no faster than one: the GIL).
