@@ -361,7 +361,7 @@ class MapMerger:
 
     def links(self) -> Dict[Tuple[str, str], Link]:
         """The verified links kept, per pair (parent, child): what the placements are made of
-        (an :class:`Link` maps metres of the child's frame to the parent's)."""
+        (a :class:`Link` maps metres of the child's frame to the parent's)."""
         with self._lock:
             return dict(self._edges)
 
