@@ -1,22 +1,24 @@
 """The merger node: discovers robots' maps, feeds them to :class:`MapMerger`, publishes the
-merged map, the TF of every placed robot and /diagnostics. See the README's ROS API."""
+merged map, the TF of every placed robot and /diagnostics. See the README's ROS API.
+
+The node discovers, subscribes, converts, calls the merger and publishes; what the merger
+decides (placements, priors and their frames, the reference robot) is in ``core/``, and the ROS
+glue around the node in modules of their own: the prior topics and parameters
+(:mod:`prior_inputs`), the watch on the set-up (:mod:`setup_watch`), the diagnostics updater
+(:mod:`updater`) and what is read before ``rospy.init_node`` (:mod:`before_init`)."""
 from __future__ import annotations
 
-import fnmatch
 import functools
-import math
 import sys
 import threading
 import time
 from typing import Dict, List, Optional
 
-import diagnostic_updater
 import numpy as np
 import rospy
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from nav_msgs.msg import MapMetaData
 from nav_msgs.srv import GetMap, GetMapResponse
-from std_msgs.msg import Empty
 from std_srvs.srv import Trigger, TriggerResponse
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import MarkerArray
@@ -24,10 +26,9 @@ from visualization_msgs.msg import MarkerArray
 from ..core.config import MergeConfig
 from ..core.grid import Grid, GridError, apply_update, same_grid
 from ..core.merger import MapMerger
-from ..core.spawn import spawn_poses_in_one_frame
 from ..core.state import load_state, save_state
-from ..core.transforms import se2, xyyaw
 from ..core.workers import start_pool
+from .before_init import NODE_NAME, workers_before_init
 from .convert import (
     NumpyGrid,
     NumpyGridUpdate,
@@ -35,46 +36,16 @@ from .convert import (
     grid_to_msg,
     metadata,
     pose_with_covariance_msg,
-    quaternion_yaw,
     transform_msg,
 )
 from .diagnostics import node_diagnostic, robot_diagnostic, stale_maps
 from .markers import markers_key, markers_msg
-from .params import check_library_param, reference_message, resolve_params, robot_of_map_topic
-from .setup_check import foreign_robot_map_tf, foreign_tf_warning, rsp_version_warning
+from .params import resolve_params, robot_of_map_topic
+from .prior_inputs import PriorInputs
+from .setup_watch import SetupWatch
+from .updater import Updater
 
-#: seconds after start during which /tf is read for other senders of the node's transforms
-TF_CHECK_SECONDS = 60.0
-
-
-class _Updater(diagnostic_updater.Updater):
-    """diagnostic_updater's Updater, whose ``~diagnostic_period`` (read again from the parameter
-    server 4 times a second) is checked as the node's own parameters are: a bad value ('abc',
-    0, a list) is logged once and the last good period kept, where the library would raise at
-    every update and /diagnostics go silent."""
-
-    def __init__(self, period: float, given):
-        super().__init__()
-        self.period = period
-        self._given = given     # the value last read (an invalid one is logged once)
-
-    def _check_diagnostic_period(self) -> None:
-        now = rospy.Time.now()
-        if now < self.last_time_period_checked + rospy.Duration(0.25):
-            return
-        try:
-            given = rospy.get_param_cached('~diagnostic_period', 1.0)
-        except Exception:   # the master gone for a moment: keep the period
-            return
-        self.last_time_period_checked = now
-        if repr(given) == repr(self._given):   # (repr: nan is not equal to itself)
-            return
-        self._given = given
-        period, error = check_library_param('diagnostic_period', given)
-        if error:
-            rospy.logerr('multi_map_merge: %s (keeping %g s)', error, self.period)
-        else:
-            self.period = period
+__all__ = ['MergeNode', 'NODE_NAME', 'load_config', 'load_params', 'run_merge_node', 'workers_before_init']
 
 
 def load_config() -> MergeConfig:
@@ -115,6 +86,8 @@ class MergeNode:
 
     def __init__(self, config: MergeConfig, diagnostic_period: float = 1.0, given_period=1.0):
         self.cfg = config
+        # the reference robot: ~reference_robot, else the first of ~robots by name, else the first
+        # by name among the robots with a map until another is merged with it (the merger's rule)
         self.merger = MapMerger(config)
         self._subs: Dict[str, list] = {}
         self._bad: Dict[str, str] = {}
@@ -125,8 +98,7 @@ class MergeNode:
         self._meta_pub = rospy.Publisher(config.merged_map_topic + '_metadata', MapMetaData,
                                          queue_size=1, latch=True)
         # /tf as tf2_ros's TransformBroadcaster sends it (it is this publisher), without importing
-        # tf2_ros, whose C++ bindings add to the node's memory (docs/measurements.md); they are
-        # loaded only to look up a prior given in another frame
+        # tf2_ros, whose C++ bindings add to the node's memory (docs/measurements.md)
         self._tf_pub = rospy.Publisher('/tf', TFMessage, queue_size=100)
         # rviz: where each robot started and the kept links (latched, sent when they change)
         self._markers_pub = rospy.Publisher('~markers', MarkerArray, queue_size=1, latch=True)
@@ -139,7 +111,7 @@ class MergeNode:
         self._est_error: Optional[BaseException] = None   # what the last estimation cycle raised
         # /diagnostics: the node's status and one per robot (added as robots appear), at
         # ~diagnostic_period (the updater's parameter, 1 s by default)
-        self._updater = _Updater(diagnostic_period, given_period)
+        self._updater = Updater(diagnostic_period, given_period)
         self._updater.setHardwareID(rospy.get_name().lstrip('/'))
         self._updater.add('node', self._node_diagnostic)
         self._diag_robots: set = set()
@@ -158,28 +130,15 @@ class MergeNode:
         self._stale: set = set()   # robots whose maps stopped (logged once)
         self._started = time.time()   # (wall seconds: how long a robot of ~robots has been silent)
         self._frame_warned: Dict[str, str] = {}
-        self._prior_subs: Dict[str, list] = {}
-        self._prior_lock = threading.Lock()
-        self._implicit_ref_prior = ''   # the reference given [0, 0, 0] for run-time priors
-        self._tf_buffer = None          # made on the first prior given in another frame
-        # m-explore's init_pose_* as read (robot -> [x, y, yaw]) while they may still be spawn
-        # poses in one frame the maps share (core/spawn.py); once the grids say so, True, and every
-        # robot's prior is [0, 0, 0]
-        self._spawn_poses: Dict[str, List[float]] = {}
-        self._spawn_checked = None      # the grids the last check saw
-        self._spawn_shared = False
-        # the reference robot: ~reference_robot, else the first of ~robots by name, else the first
-        # by name among the robots with a map until another is merged with it (decide_reference)
+        self._priors = PriorInputs(self.merger, config)
         self._ref_logged = None
         self._ref_lock = threading.Lock()
-        if config.robots:
-            self.merger.propose_reference(sorted(r.strip('/') for r in config.robots)[0])
         self._log_reference()
         for r in config.robots:
             self._subscribe(r.strip('/'))
         self._ready = None   # the latest merged grid, composited off the publishing path
         self._sent = None    # (grid, placements) of the last /map sent
-        self._check_setup()
+        SetupWatch(self.merger, config)
         self._discover(None)
         rospy.Timer(rospy.Duration(1.0 / config.discovery_rate), self._discover)
         rospy.Timer(rospy.Duration(1.0 / config.merge_rate), self._publish_map)
@@ -196,48 +155,6 @@ class MergeNode:
                       config.robots or config.robot_namespace_pattern,
                       self.merger.reference or '(the first by name among the robots with a map, until '
                       'another robot is merged with it)', config.merged_map_frame)
-
-    # -- what the set-up needs (ros/setup_check.py)
-    def _check_setup(self) -> None:
-        """At start: one warning when robot_state_publisher has no tf_prefix (older than 1.15.2),
-        and one per frame when another node broadcasts merged frame -> a robot's map frame, the
-        TF this node publishes (its sender is the messages' callerid, tf's authority). /tf_static
-        is watched for the node's life (latched, seldom sent); /tf for TF_CHECK_SECONDS after
-        start only, as every robot's TF at 50 Hz would cost this Python node a core."""
-        try:
-            import rospkg
-            version = rospkg.RosPack().get_manifest('robot_state_publisher').version
-        except Exception:   # not installed here (it runs on the robots): nothing to say
-            version = None
-        line = rsp_version_warning(version)
-        if line:
-            rospy.logwarn('multi_map_merge: %s', line)
-        self._tf_warned: set = set()
-        rospy.Subscriber('/tf_static', TFMessage, self._on_foreign_tf, callback_args=True, queue_size=10)
-        sub = rospy.Subscriber('/tf', TFMessage, self._on_foreign_tf, callback_args=False, queue_size=100)
-        rospy.Timer(rospy.Duration(TF_CHECK_SECONDS), lambda _e: sub.unregister(), oneshot=True)
-
-    def _is_robot_map_frame(self, frame: str) -> bool:
-        if frame in self.merger.frames().values():
-            return True
-        ns, _, last = frame.rpartition('/')
-        if last != 'map' or not ns:
-            return False
-        if self.cfg.robots:
-            return ns in {r.strip('/') for r in self.cfg.robots}
-        return fnmatch.fnmatchcase(ns, self.cfg.robot_namespace_pattern)
-
-    def _on_foreign_tf(self, msg, static: bool) -> None:
-        authority = getattr(msg, '_connection_header', {}).get('callerid', '')
-        for t in msg.transforms:
-            parent, child = t.header.frame_id, t.child_frame_id
-            key = (parent.lstrip('/'), child.lstrip('/'), authority)
-            if key in self._tf_warned or not foreign_robot_map_tf(
-                    parent, child, authority, self.cfg.merged_map_frame, rospy.get_name(),
-                    self._is_robot_map_frame):
-                continue
-            self._tf_warned.add(key)
-            rospy.logwarn('multi_map_merge: %s', foreign_tf_warning(parent, child, authority, static))
 
     # -- inputs
     def _discover(self, _event) -> None:
@@ -267,7 +184,7 @@ class MergeNode:
             if key == self._ref_logged or not choice.robot:
                 return
             self._ref_logged = key
-        rospy.loginfo('multi_map_merge: %s', reference_message(choice))
+        rospy.loginfo('multi_map_merge: %s', choice.message())
 
     def _watch(self) -> None:
         """Log a robot whose map publisher went away, or whose maps stopped (none for over
@@ -307,172 +224,7 @@ class MergeNode:
                 rospy.Subscriber(updates, NumpyGridUpdate, self._on_update,
                                  callback_args=robot, queue_size=10, buff_size=2 ** 24)]
         rospy.loginfo('multi_map_merge: robot %s found, subscribed to %s', robot, topic)
-        self._read_init_pose(robot)
-        self._subscribe_prior(robot)
-
-    # -- priors given while running (rviz's 2D Pose Estimate)
-    def _subscribe_prior(self, robot: str) -> None:
-        """``/<robot>/map_merge/prior`` (geometry_msgs/PoseWithCovarianceStamped, what rviz's
-        2D Pose Estimate publishes): where the robot's map frame origin (its start pose) lies
-        in the merged frame; ``/<robot>/map_merge/clear_prior`` (std_msgs/Empty) removes it."""
-        with self._prior_lock:
-            if robot in self._prior_subs:
-                return
-            self._prior_subs[robot] = [
-                rospy.Subscriber('/%s/map_merge/prior' % robot, PoseWithCovarianceStamped,
-                                 self._on_prior, callback_args=robot, queue_size=1),
-                rospy.Subscriber('/%s/map_merge/clear_prior' % robot, Empty,
-                                 self._on_clear_prior, callback_args=robot, queue_size=1)]
-
-    def _prior_in_merged_frame(self, msg) -> np.ndarray:
-        """The 3x3 pose of a PoseWithCovarianceStamped in the merged frame (through TF when
-        it is given in another frame); ValueError saying why not."""
-        p, q = msg.pose.pose.position, msg.pose.pose.orientation
-        values = [p.x, p.y, q.x, q.y, q.z, q.w]
-        if not all(math.isfinite(v) for v in values):
-            raise ValueError('not finite: %s' % values)
-        if q.x * q.x + q.y * q.y + q.z * q.z + q.w * q.w < 1e-6:
-            raise ValueError('its orientation is not a rotation (a zero quaternion)')
-        T = se2(p.x, p.y, quaternion_yaw(q))
-        frame = msg.header.frame_id.lstrip('/')
-        merged = self.cfg.merged_map_frame.lstrip('/')
-        if not frame or frame == merged:
-            return T
-        import tf2_ros
-        if self._tf_buffer is None:
-            self._tf_buffer = tf2_ros.Buffer()
-            self._tf_listener = tf2_ros.TransformListener(self._tf_buffer)
-        try:
-            t = self._tf_buffer.lookup_transform(merged, frame, rospy.Time(0), rospy.Duration(2.0))
-        except (tf2_ros.LookupException, tf2_ros.ConnectivityException, tf2_ros.ExtrapolationException,
-                tf2_ros.TransformException) as e:
-            raise ValueError('no TF from its frame "%s" to the merged frame "%s": %s'
-                             % (frame, merged, e)) from None
-        tr = t.transform
-        return se2(tr.translation.x, tr.translation.y, quaternion_yaw(tr.rotation)) @ T
-
-    def _on_prior(self, msg, robot: str) -> None:
-        topic = '/%s/map_merge/prior' % robot
-        try:
-            T = self._prior_in_merged_frame(msg)
-        except ValueError as e:
-            rospy.logerr('multi_map_merge: ignoring the prior of %s on %s: %s', robot, topic, e)
-            return
-        with self._prior_lock:
-            ref = self.merger.reference
-            priors = self.cfg.initial_poses
-            if robot == ref:
-                rospy.logwarn('multi_map_merge: ignoring the prior of %s on %s: %s is the reference, its map '
-                              'frame is the merged frame (give the other robots\' priors)', robot, topic, robot)
-                return
-            if ref in priors:
-                pose = list(xyyaw(se2(*priors[ref]) @ T))   # into the frame common to all priors
-            elif any(r != robot for r in priors):
-                rospy.logerr('multi_map_merge: ignoring the prior of %s on %s: the other priors (%s) are in '
-                             'a frame of their own and the reference %s has none, so a pose in the merged '
-                             'frame cannot be related to them; give %s a prior in ~initial_poses',
-                             robot, topic, ', '.join(sorted(priors)), ref, ref)
-                return
-            else:
-                # the merged frame (the reference's map frame) becomes the frame of the priors
-                self._implicit_ref_prior = ref
-                self.merger.set_initial_pose(ref, [0.0, 0.0, 0.0])
-                pose = list(xyyaw(T))
-            for event in self.merger.set_initial_pose(robot, pose):
-                rospy.logwarn('multi_map_merge: %s', event)
-        x, y, yaw = xyyaw(T)
-        rospy.loginfo('multi_map_merge: prior of %s from %s: its map frame at x=%.3f m y=%.3f m yaw=%.2f deg '
-                      'in %s%s; links contradicting it by more than %.2f m or %.1f deg are rejected%s',
-                      robot, topic, x, y, math.degrees(yaw), self.cfg.merged_map_frame,
-                      ' (given in %s)' % msg.header.frame_id if msg.header.frame_id.lstrip('/') not in
-                      ('', self.cfg.merged_map_frame.lstrip('/')) else '',
-                      self.cfg.initial_pose_tolerance[0], math.degrees(self.cfg.initial_pose_tolerance[1]),
-                      ', and it is placed there while no link places it (~trust_initial_poses)'
-                      if self.cfg.trust_initial_poses else '')
-
-    def _on_clear_prior(self, _msg, robot: str) -> None:
-        with self._prior_lock:
-            if robot not in self.cfg.initial_poses:
-                rospy.loginfo('multi_map_merge: /%s/map_merge/clear_prior: %s has no prior', robot, robot)
-                return
-            self.merger.set_initial_pose(robot, None)
-            ref = self._implicit_ref_prior
-            if ref and set(self.cfg.initial_poses) <= {ref}:
-                self.merger.set_initial_pose(ref, None)
-                self._implicit_ref_prior = ''
-        rospy.loginfo('multi_map_merge: prior of %s cleared (/%s/map_merge/clear_prior): its pairs are '
-                      'estimated again without it', robot, robot)
-
-    def _read_init_pose(self, robot: str) -> None:
-        """m-explore's per-robot prior, ``/<robot>/map_merge/init_pose_{x,y,yaw}`` (metres,
-        radians; the robot's map frame in a common world frame), for a robot that
-        ``initial_poses`` does not list, only under ``~known_init_poses`` (off by default, as in
-        m-explore). ROBOTIS's Gazebo launch file writes spawn positions there while every
-        robot's map is in the world frame: :meth:`_check_spawn_poses` tells that from the grids."""
-        if not self.cfg.known_init_poses or robot in self.cfg.initial_poses:
-            return
-        names = ['/%s/map_merge/init_pose_%s' % (robot, k) for k in ('x', 'y', 'yaw')]
-        try:
-            if not all(rospy.has_param(n) for n in names):
-                return
-            pose = [float(rospy.get_param(n)) for n in names]
-        except (KeyError, TypeError, ValueError) as e:
-            rospy.logerr('multi_map_merge: ignoring the initial pose of %s: %s', robot, e)
-            return
-        except Exception as e:   # the master gone for a moment
-            rospy.logwarn('multi_map_merge: could not read the initial pose of %s: %s', robot, e)
-            return
-        if not all(math.isfinite(v) for v in pose):
-            rospy.logerr('multi_map_merge: ignoring the initial pose of %s: not finite %s', robot, pose)
-            return
-        with self._prior_lock:
-            self._spawn_poses[robot] = pose
-            if self._spawn_shared:
-                # the set-up is known: these are spawn poses in the frame every map shares
-                self.merger.set_initial_pose(robot, [0.0, 0.0, 0.0])
-                rospy.loginfo('multi_map_merge: initial pose of %s from /%s/map_merge/init_pose_*: x=%.3f m '
-                              'y=%.3f m yaw=%.2f deg, a spawn pose in the frame the robots\' maps share (as '
-                              'said above): its prior is [0, 0, 0]', robot, robot, pose[0], pose[1],
-                              math.degrees(pose[2]))
-                return
-            # a new dict, not an update: the estimation thread reads the old one meanwhile
-            self.cfg.initial_poses = dict(self.cfg.initial_poses, **{robot: pose})
-        rospy.loginfo('multi_map_merge: initial pose of %s from /%s/map_merge/init_pose_*: x=%.3f m '
-                      'y=%.3f m yaw=%.2f deg', robot, robot, pose[0], pose[1], math.degrees(pose[2]))
-
-    def _check_spawn_poses(self) -> None:
-        """Before each estimation cycle, until decided: are the init_pose_* priors spawn poses
-        of robots whose maps share one frame (ROBOTIS's Gazebo set-up, core/spawn.py)? Then
-        one warning says so and what to change, and every such robot's prior becomes [0, 0, 0]
-        (its map frame is the shared frame). Priors changed since they were read (rviz) are
-        left out."""
-        with self._prior_lock:
-            if self._spawn_shared or len(self._spawn_poses) < 2:
-                return
-            priors = {r: p for r, p in self._spawn_poses.items()
-                      if self.cfg.initial_poses.get(r) == p and r in self._latest}
-        grids = {r: self._latest[r] for r in priors}
-        seen = tuple(sorted((r, id(g)) for r, g in grids.items()))
-        if seen == self._spawn_checked:
-            return
-        self._spawn_checked = seen
-        verdict = spawn_poses_in_one_frame(self.cfg, grids, priors)
-        if verdict is None:
-            return
-        with self._prior_lock:
-            self._spawn_shared = True
-            # (robots read from init_pose_* whose maps have not come yet too: the set-up is one)
-            changed = [r for r in sorted(self._spawn_poses) if self.cfg.initial_poses.get(r) == self._spawn_poses[r]]
-            for r in changed:
-                for event in self.merger.set_initial_pose(r, [0.0, 0.0, 0.0]):
-                    rospy.logwarn('multi_map_merge: %s', event)
-        rospy.logwarn(
-            'multi_map_merge: ~known_init_poses: the init_pose_* of %s are spawn poses of robots whose maps '
-            'share one frame, not the poses of their map frames (ROBOTIS\'s Gazebo set-up: every gmapping map '
-            'starts in Gazebo\'s world frame): %s; merging with [0, 0, 0] as the prior of each. To say so in '
-            'your launch file: set known_init_poses false (the maps alone place the robots) or every '
-            'init_pose_x, _y, _yaw 0, and drop its static_transform_publishers of %s -> <robot>/map (this node '
-            'broadcasts them)', ', '.join(changed), verdict.message(), self.cfg.merged_map_frame)
+        self._priors.add_robot(robot)
 
     def _refuse(self, robot: str, reason: str) -> None:
         if self._bad.get(robot) != reason:  # once per robot and reason, not per message
@@ -527,7 +279,7 @@ class MergeNode:
             t0 = time.monotonic()
             failed_before = self._est_error is not None
             try:
-                self._check_spawn_poses()
+                self._priors.check_spawn_poses()
                 for event in self.merger.estimate():
                     rospy.loginfo('multi_map_merge: %s', event)
                 self._log_reference()
@@ -651,7 +403,7 @@ class MergeNode:
             stat.hardware_id = robot
             return stat
         return robot_diagnostic(robot, st, bool(self._gone.get(robot)), time.time(), stat,
-                                self.cfg.max_position_sigma, self.cfg.stale_map_timeout)
+                                stale_map_timeout=self.cfg.stale_map_timeout)
 
     def _node_diagnostic(self, stat):
         now = time.time()
@@ -677,45 +429,6 @@ class MergeNode:
         self.merger.reset()
         rospy.logwarn('multi_map_merge: all transforms forgotten (reset service)')
         return TriggerResponse(True, 'all transforms forgotten')
-
-
-NODE_NAME = 'map_merge'
-
-
-def workers_before_init(argv=None) -> int:
-    """``~workers`` as the node will read it, read before ``rospy.init_node`` (which starts
-    threads): from a ``_workers:=N`` argument, else from the parameter server (XML-RPC calls, no
-    thread; the node's name and namespace from ``__name:=``, ``__ns:=`` or ROS_NAMESPACE, as rospy
-    resolves them). 0 (one per core) when it is not set, cannot be read within 2 s or is invalid
-    (load_params says why later). The pool must be forked now: a pool of another size started
-    once threads run comes from a forkserver, which imports OpenCV again (about 100 MB more for
-    the node's tree on the house maps)."""
-    import socket
-
-    import rosgraph
-    import rosgraph.names
-    import yaml
-    argv = sys.argv if argv is None else argv
-    value = None
-    for a in argv:
-        if a.startswith('_workers:='):
-            try:
-                value = yaml.safe_load(a.split(':=', 1)[1])
-            except yaml.YAMLError:
-                value = a.split(':=', 1)[1]
-    if value is None:
-        mappings = rosgraph.names.load_mappings(argv)
-        name = rosgraph.names.ns_join(rosgraph.names.get_ros_namespace(argv=argv),
-                                      mappings.get('__name', NODE_NAME))
-        old = socket.getdefaulttimeout()
-        socket.setdefaulttimeout(2.0)
-        try:
-            value = rosgraph.Master(name).getParam(rosgraph.names.ns_join(name, 'workers'))
-        except Exception:   # not set (MasterError), no master yet (rosrun before roscore), unreachable
-            return 0
-        finally:
-            socket.setdefaulttimeout(old)
-    return resolve_params({'workers': value}).config.workers
 
 
 def run_merge_node(argv: Optional[List[str]] = None) -> None:
