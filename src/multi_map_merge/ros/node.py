@@ -2,13 +2,13 @@
 merged map, the TF of every placed robot and /diagnostics. See the README's ROS API.
 
 The node discovers, subscribes, converts, calls the merger and publishes; what the merger
-decides (placements, priors and their frames, the reference robot) is in ``core/``, and the ROS
-glue around the node in modules of their own: the prior topics and parameters
-(:mod:`prior_inputs`), the watch on the set-up (:mod:`setup_watch`), the diagnostics updater
-(:mod:`updater`) and what is read before ``rospy.init_node`` (:mod:`before_init`)."""
+decides (placements, priors and their frames, the reference robot) is in ``core/``. The ROS glue
+around it has modules of its own: the prior topics and parameters (:mod:`prior_inputs`), the
+publishers of the placements (:mod:`placement_outputs`), the log and /diagnostics of the robots'
+and the node's state (:mod:`health`, :mod:`updater`), the watch on the set-up
+(:mod:`setup_watch`) and what is read before ``rospy.init_node`` (:mod:`before_init`)."""
 from __future__ import annotations
 
-import functools
 import sys
 import threading
 import time
@@ -16,12 +16,9 @@ from typing import Dict, List, Optional
 
 import numpy as np
 import rospy
-from geometry_msgs.msg import PoseWithCovarianceStamped
 from nav_msgs.msg import MapMetaData
 from nav_msgs.srv import GetMap, GetMapResponse
 from std_srvs.srv import Trigger, TriggerResponse
-from tf2_msgs.msg import TFMessage
-from visualization_msgs.msg import MarkerArray
 
 from ..core.config import MergeConfig
 from ..core.grid import Grid, GridError, apply_update, same_grid
@@ -29,21 +26,12 @@ from ..core.merger import MapMerger
 from ..core.state import load_state, save_state
 from ..core.workers import start_pool
 from .before_init import NODE_NAME, workers_before_init
-from .convert import (
-    NumpyGrid,
-    NumpyGridUpdate,
-    grid_from_msg,
-    grid_to_msg,
-    metadata,
-    pose_with_covariance_msg,
-    transform_msg,
-)
-from .diagnostics import node_diagnostic, robot_diagnostic, stale_maps
-from .markers import markers_key, markers_msg
+from .convert import NumpyGrid, NumpyGridUpdate, grid_from_msg, grid_to_msg, metadata
+from .health import NodeHealth
 from .params import resolve_params, robot_of_map_topic
+from .placement_outputs import PlacementOutputs
 from .prior_inputs import PriorInputs
 from .setup_watch import SetupWatch
-from .updater import Updater
 
 __all__ = ['MergeNode', 'NODE_NAME', 'load_config', 'load_params', 'run_merge_node', 'workers_before_init']
 
@@ -97,24 +85,10 @@ class MergeNode:
         self._map_pub = rospy.Publisher(config.merged_map_topic, NumpyGrid, queue_size=1, latch=True)
         self._meta_pub = rospy.Publisher(config.merged_map_topic + '_metadata', MapMetaData,
                                          queue_size=1, latch=True)
-        # /tf as tf2_ros's TransformBroadcaster sends it (it is this publisher), without importing
-        # tf2_ros, whose C++ bindings add to the node's memory (docs/measurements.md)
-        self._tf_pub = rospy.Publisher('/tf', TFMessage, queue_size=100)
-        # rviz: where each robot started and the kept links (latched, sent when they change)
-        self._markers_pub = rospy.Publisher('~markers', MarkerArray, queue_size=1, latch=True)
-        self._markers_key = None
-        # /<robot>/map_merge/pose (latched, made as robots are placed) and what each last sent
-        self._pose_pubs: Dict[str, rospy.Publisher] = {}
-        self._pose_keys: Dict[str, tuple] = {}
-        self._last_est = 0.0
-        self._est_seconds = 0.0
-        self._est_error: Optional[BaseException] = None   # what the last estimation cycle raised
-        # /diagnostics: the node's status and one per robot (added as robots appear), at
-        # ~diagnostic_period (the updater's parameter, 1 s by default)
-        self._updater = Updater(diagnostic_period, given_period)
-        self._updater.setHardwareID(rospy.get_name().lstrip('/'))
-        self._updater.add('node', self._node_diagnostic)
-        self._diag_robots: set = set()
+        # the placements as TF, /<robot>/map_merge/pose and rviz markers
+        self._placements = PlacementOutputs(self.merger, config)
+        # vanished and stale robots in the log, and /diagnostics
+        self._health = NodeHealth(self.merger, config, diagnostic_period, given_period)
         rospy.Service('~reset', Trigger, self._reset)
         # gmapping's service, under gmapping's (relative) name, beside the `map` topic
         rospy.Service('dynamic_map', GetMap, self._get_map)
@@ -126,9 +100,6 @@ class MergeNode:
             except ValueError as e:
                 rospy.logerr('multi_map_merge: %s (starting without its saved links)', e)
             self._saved_version = self.merger.state_version
-        self._gone: Dict[str, bool] = {}
-        self._stale: set = set()   # robots whose maps stopped (logged once)
-        self._started = time.time()   # (wall seconds: how long a robot of ~robots has been silent)
         self._frame_warned: Dict[str, str] = {}
         self._priors = PriorInputs(self.merger, config)
         self._ref_logged = None
@@ -142,10 +113,8 @@ class MergeNode:
         self._discover(None)
         rospy.Timer(rospy.Duration(1.0 / config.discovery_rate), self._discover)
         rospy.Timer(rospy.Duration(1.0 / config.merge_rate), self._publish_map)
-        rospy.Timer(rospy.Duration(1.0 / config.merge_rate), self._publish_markers)
-        rospy.Timer(rospy.Duration(1.0 / config.merge_rate), self._publish_poses)
-        rospy.Timer(rospy.Duration(1.0 / config.tf_rate), self._publish_tf)
-        rospy.Timer(rospy.Duration(0.2), self._update_diagnostics)
+        self._placements.start()
+        self._health.start()
         self._worker = threading.Thread(target=self._estimation_loop, name='estimation', daemon=True)
         self._worker.start()
         self._compositor = threading.Thread(target=self._compositing_loop, name='compositing', daemon=True)
@@ -158,7 +127,9 @@ class MergeNode:
 
     # -- inputs
     def _discover(self, _event) -> None:
-        self._watch()
+        with self._lock:
+            map_subs = {robot: subs[0] for robot, subs in self._subs.items()}
+        self._health.watch(map_subs, self._latest)
         if self.cfg.robots:
             return
         try:
@@ -185,32 +156,6 @@ class MergeNode:
                 return
             self._ref_logged = key
         rospy.loginfo('multi_map_merge: %s', choice.message())
-
-    def _watch(self) -> None:
-        """Log a robot whose map publisher went away, or whose maps stopped (none for over
-        ``~stale_map_timeout``), and its return. Its last map and transform stay in the merge:
-        what it mapped is still true."""
-        with self._lock:
-            subs = dict(self._subs)
-        for robot, (map_sub, _) in subs.items():
-            gone = map_sub.get_num_connections() == 0 and robot in self._latest
-            if gone and not self._gone.get(robot):
-                rospy.logwarn('multi_map_merge: robot %s vanished (no publisher of %s): keeping its '
-                              'last map and transform', robot, map_sub.name)
-            elif not gone and self._gone.get(robot):
-                rospy.loginfo('multi_map_merge: robot %s is back', robot)
-            self._gone[robot] = gone
-        stale = stale_maps(self.merger.status(), self._gone, time.time(), self.cfg.stale_map_timeout)
-        for robot, age in sorted(stale.items()):
-            if robot not in self._stale:
-                rospy.logwarn('multi_map_merge: no map of robot %s for %.0f s (over ~stale_map_timeout, %g s), '
-                              'though %s still has a publisher: keeping its last map and transform',
-                              robot, age, self.cfg.stale_map_timeout, subs[robot][0].name if robot in subs else
-                              'its map topic')
-        for robot in sorted(self._stale - set(stale)):
-            if not self._gone.get(robot):
-                rospy.loginfo('multi_map_merge: maps of robot %s arrive again', robot)
-        self._stale = set(stale)
 
     def _subscribe(self, robot: str) -> None:
         with self._lock:
@@ -277,23 +222,19 @@ class MergeNode:
         period = 1.0 / self.cfg.estimation_rate
         while not rospy.is_shutdown():
             t0 = time.monotonic()
-            failed_before = self._est_error is not None
+            error = None
             try:
                 self._priors.check_spawn_poses()
                 for event in self.merger.estimate():
                     rospy.loginfo('multi_map_merge: %s', event)
                 self._log_reference()
-                self._est_error = None
             except Exception as e:  # a bad cycle must not end estimation for good
                 rospy.logerr('multi_map_merge: estimation failed: %r', e)
-                self._est_error = e
-            self._est_seconds = time.monotonic() - t0
-            if (self._est_error is not None) != failed_before:
-                self._updater.force_update()   # the node's status changed level: say so now
-            self._last_est = time.time()
+                error = e
+            seconds = time.monotonic() - t0
+            self._health.estimated(seconds, error)
             self._persist()
-            left = period - self._est_seconds
-            end = time.monotonic() + max(0.0, left)
+            end = time.monotonic() + max(0.0, period - seconds)
             while not rospy.is_shutdown() and time.monotonic() < end:
                 time.sleep(min(0.1, end - time.monotonic() + 1e-3))
 
@@ -341,79 +282,6 @@ class MergeNode:
         self._map_pub.publish(grid_to_msg(grid, now, self.cfg.merged_map_frame))
         self._meta_pub.publish(metadata(grid, now))
         self._sent = (grid, placed)
-
-    def _publish_markers(self, _event) -> None:
-        """The rviz markers (latched), sent again only when a placement or a kept link changed."""
-        placements, links = self.merger.placements(), list(self.merger.links().values())
-        key = markers_key(placements, links)
-        if key == self._markers_key:
-            return
-        # stamp 0: a placement is a pose between frames, not of a moment; rviz draws it with
-        # the latest TF whatever its fixed frame
-        self._markers_pub.publish(markers_msg(placements, links, self.cfg.merged_map_frame, rospy.Time(0),
-                                              self.cfg.min_agreement))
-        self._markers_key = key
-
-    def _publish_poses(self, _event) -> None:
-        """Per placed robot, its map frame's pose in the merged frame with the placement's
-        covariance on ``/<robot>/map_merge/pose`` (latched), sent when the placement or its
-        covariance changed. A robot no longer placed gets nothing new (its TF stops; /diagnostics
-        says it is not merged)."""
-        for robot, pl in self.merger.placements().items():
-            cov = pl.cov   # read once: the estimation thread sets it anew in place
-            key = (pl.T.tobytes(), None if cov is None else np.asarray(cov).tobytes(), pl.via)
-            if self._pose_keys.get(robot) == key:
-                continue
-            pub = self._pose_pubs.get(robot)
-            if pub is None:
-                pub = self._pose_pubs[robot] = rospy.Publisher(
-                    '/%s/map_merge/pose' % robot, PoseWithCovarianceStamped, queue_size=1, latch=True)
-            pub.publish(pose_with_covariance_msg(pl.T, cov, self.cfg.merged_map_frame, rospy.Time.now(),
-                                                 exact=not pl.via))
-            self._pose_keys[robot] = key
-
-    def _publish_tf(self, _event) -> None:
-        frames = self.merger.frames()
-        now = rospy.Time.now()
-        # On a bag's clock two timer ticks can share a stamp: tf2 would warn of repeated data
-        if now == getattr(self, '_last_tf_stamp', None):
-            return
-        self._last_tf_stamp = now
-        out = []
-        for robot, pl in self.merger.placements().items():
-            child = frames.get(robot)
-            if child and child != self.cfg.merged_map_frame:
-                out.append(transform_msg(pl.T, self.cfg.merged_map_frame, child, now))
-        if out:
-            self._tf_pub.publish(TFMessage(out))
-
-    def _update_diagnostics(self, _event) -> None:
-        """Give every robot seen a status of its own, then let the updater publish (it does at
-        ~diagnostic_period)."""
-        for robot in self.merger.status():
-            if robot not in self._diag_robots:
-                self._diag_robots.add(robot)
-                self._updater.add(robot, functools.partial(self._robot_diagnostic, robot))
-        self._updater.update()
-
-    def _robot_diagnostic(self, robot: str, stat):
-        st = self.merger.status().get(robot)
-        if st is None:   # (robots are never forgotten by the node: kept for completeness)
-            stat.summary(stat.WARN, 'no longer known')
-            stat.hardware_id = robot
-            return stat
-        return robot_diagnostic(robot, st, bool(self._gone.get(robot)), time.time(), stat,
-                                stale_map_timeout=self.cfg.stale_map_timeout)
-
-    def _node_diagnostic(self, stat):
-        now = time.time()
-        waited = now - self._started
-        # robots of ~robots that never sent a map, once that is as long as a stopped map's
-        silent = {r: waited for r in self.cfg.robots} if (
-            self.cfg.stale_map_timeout > 0 and waited > self.cfg.stale_map_timeout) else {}
-        return node_diagnostic(self.merger.status(), self._gone, self._est_seconds, self._est_error,
-                               len(self.merger.frames()), len(self.merger.placements()), stat,
-                               now, self.cfg.stale_map_timeout, silent)
 
     def _get_map(self, _req) -> GetMapResponse:
         """The merged map as /map has it now (gmapping's ``dynamic_map``); an error before
