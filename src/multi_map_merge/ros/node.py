@@ -23,7 +23,7 @@ from std_srvs.srv import Trigger, TriggerResponse
 from ..core.config import MergeConfig
 from ..core.grid import Grid, GridError, apply_update, same_grid
 from ..core.merger import MapMerger
-from ..core.state import load_state, save_state
+from ..core.state import StateFile
 from ..core.workers import start_pool
 from .before_init import NODE_NAME, workers_before_init
 from .convert import NumpyGrid, NumpyGridUpdate, grid_from_msg, grid_to_msg, metadata
@@ -80,7 +80,6 @@ class MergeNode:
         self._subs: Dict[str, list] = {}
         self._bad: Dict[str, str] = {}
         self._latest: Dict[str, Grid] = {}   # last accepted raw grid per robot (for map_updates)
-        self._saved_version = -1
         self._lock = threading.Lock()
         self._map_pub = rospy.Publisher(config.merged_map_topic, NumpyGrid, queue_size=1, latch=True)
         self._meta_pub = rospy.Publisher(config.merged_map_topic + '_metadata', MapMetaData,
@@ -92,14 +91,14 @@ class MergeNode:
         rospy.Service('~reset', Trigger, self._reset)
         # gmapping's service, under gmapping's (relative) name, beside the `map` topic
         rospy.Service('dynamic_map', GetMap, self._get_map)
-        if config.state_file:
+        self._state = StateFile(config.state_file, self.merger) if config.state_file else None
+        if self._state is not None:
             try:
-                n = self.merger.restore_state(load_state(config.state_file))
+                n = self._state.restore()
                 rospy.loginfo('multi_map_merge: %d saved links read from %s; each is verified again '
                               'before use', n, config.state_file)
             except ValueError as e:
                 rospy.logerr('multi_map_merge: %s (starting without its saved links)', e)
-            self._saved_version = self.merger.state_version
         self._frame_warned: Dict[str, str] = {}
         self._priors = PriorInputs(self.merger, config)
         self._ref_logged = None
@@ -239,12 +238,10 @@ class MergeNode:
                 time.sleep(min(0.1, end - time.monotonic() + 1e-3))
 
     def _persist(self) -> None:
-        if not self.cfg.state_file or self.merger.state_version == self._saved_version:
+        if self._state is None:
             return
-        version = self.merger.state_version
         try:
-            save_state(self.cfg.state_file, self.merger.export_state())
-            self._saved_version = version
+            self._state.save()
         except OSError as e:
             rospy.logerr_throttle(60, 'multi_map_merge: cannot save %s: %s' % (self.cfg.state_file, e))
 
