@@ -198,6 +198,23 @@ def test_the_reference_message_says_whether_it_may_still_change():
     assert 'set ~reference_robot to fix it' in line
 
 
+def test_the_reference_line_is_the_same_as_the_nodes_was():
+    """ReferenceChoice.message: the line ros/params.reference_message wrote, now the merger's
+    (the same cases as test_params' test of it)."""
+    from multi_map_merge.core.merger import REF_FIRST_BY_NAME, REF_PARAMETER, ReferenceChoice
+    assert ReferenceChoice('', False, REF_FIRST_BY_NAME).message() == ''
+    assert ReferenceChoice('tb3_2', True, REF_PARAMETER).message() == \
+        'reference robot tb3_2 (set by ~reference_robot): the merged frame is its map frame'
+    line = ReferenceChoice('tb3_0', True, REF_PROPOSED).message()
+    assert line.startswith('reference robot tb3_0 (the first of ~robots by name; set ~reference_robot')
+    line = ReferenceChoice('tb3_1', False, REF_FIRST_BY_NAME, ('tb3_1', 'tb3_2')).message()
+    assert line.startswith('reference robot tb3_1 for now (the first by name among the robots with a map: '
+                           'tb3_1, tb3_2)') and 'set ~reference_robot to fix it' in line
+    line = ReferenceChoice('tb3_1', True, REF_FIRST_BY_NAME, ('tb3_0', 'tb3_1', 'tb3_2')).message()
+    assert line.startswith('reference robot tb3_1, fixed now that another robot is merged with it')
+    assert line.endswith('set ~reference_robot: tb3_1 for the same merged frame in every run')
+
+
 def _small_grid():
     from multi_map_merge.core.grid import Grid
     data = np.full((20, 30), -1, dtype=np.int8)
