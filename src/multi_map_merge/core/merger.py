@@ -24,21 +24,22 @@ from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
-from . import bend, corroborate, deform, joint, links, placement, verify
+from . import bend, corroborate, deform, joint, links, placement, spawn, verify
 from .composite import Lattice, Patch, composite, lattice_for, warp_patch
 from .config import MergeConfig
 from .grid import DEFAULT_FREE_THRESH, DEFAULT_OCC_THRESH, Grid, same_grid
 from .links import Link
 from .pair import PairResult, align_pair
 from .placement import Placement
+from .priors import PriorRefused, in_priors_frame, relative_pose
 from .robot_map import RobotMap
 from .state import link_dict, link_from_dict, placement_dict
-from .transforms import image_to_pose, inverse, pose_distance, se2
+from .transforms import image_to_pose, pose_distance
 from .workers import PairWorkers
 
 #: why the reference robot is the one it is (:meth:`MapMerger.reference_choice`)
 REF_PARAMETER = 'parameter'          # config.reference_robot
-REF_PROPOSED = 'proposed'            # propose_reference (the node: the first of ~robots by name)
+REF_PROPOSED = 'proposed'            # propose_reference (the first of config.robots by name)
 REF_FIRST_BY_NAME = 'first by name'  # decide_reference
 
 
@@ -65,6 +66,27 @@ class ReferenceChoice:
     fixed: bool
     why: str                           # REF_PARAMETER, REF_PROPOSED or REF_FIRST_BY_NAME
     with_maps: Tuple[str, ...] = ()    # the robots with a map, by name
+
+    def message(self) -> str:
+        """Which robot is the reference (the merged frame is its map frame), why, and how to
+        choose it (the node's ``~reference_robot``), for people; '' before there is one."""
+        ref = self.robot
+        if not ref:
+            return ''
+        if self.why == REF_PARAMETER:
+            return 'reference robot %s (set by ~reference_robot): the merged frame is its map frame' % ref
+        if self.why == REF_PROPOSED:
+            return ('reference robot %s (the first of ~robots by name; set ~reference_robot to choose '
+                    'another): the merged frame is its map frame' % ref)
+        others = ', '.join(self.with_maps)
+        if not self.fixed:
+            return ('reference robot %s for now (the first by name among the robots with a map: %s): the '
+                    'merged frame is its map frame; a robot of a lower name whose map comes before another '
+                    'robot is merged with %s takes it over; set ~reference_robot to fix it' % (ref, others, ref))
+        return ('reference robot %s, fixed now that another robot is merged with it (it was the first by name '
+                'among the robots with a map: %s; a robot whose map comes later does not take the merged '
+                'frame over): set ~reference_robot: %s for the same merged frame in every run'
+                % (ref, others, ref))
 
 
 @dataclass
@@ -121,6 +143,19 @@ class MapMerger:
         self._fields_key = None   # the maps and placements the fields were fitted to (_bend)
         self.state_version = 0    # bumped whenever links or placements change (for persistence)
         self._prior_epoch = 0     # bumped when a prior changes: a cycle begun before is discarded
+        # the priors in use (:meth:`priors`): the configured ones until some are given while running
+        self._priors: Dict[str, List[float]] = {n: list(p) for n, p in c.initial_poses.items()}
+        # a prior's compound changes (read the priors, relate, set) one at a time; taken before _lock
+        self._prior_lock = threading.RLock()
+        self._implicit_ref_prior = ''   # the reference given [0, 0, 0] for priors in the merged frame
+        # m-explore's init_pose_* as given (robot -> [x, y, yaw]) while they may still be spawn
+        # poses in one frame the maps share (check_spawn_poses); once the grids say so, _spawn_shared
+        self._spawn_poses: Dict[str, List[float]] = {}
+        self._spawn_checked = None      # the grids the last check saw
+        self._spawn_shared = False
+        if c.robots:
+            # the robots are listed: the first by name is the reference unless one is configured
+            self.propose_reference(sorted(r.strip('/') for r in c.robots)[0])
 
     # ------------------------------------------------------------------ inputs
     @property
@@ -230,29 +265,37 @@ class MapMerger:
             self._forget_locked(name)
             self._settle_reference_locked()
 
-    def set_initial_pose(self, name: str, pose: Optional[Sequence[float]]) -> List[str]:
-        """Set (``[x, y, yaw]``, the meaning of ``initial_poses``) or remove (None) one robot's
-        prior while running. Its pairs are estimated again under the new prior (the gate of
-        :func:`pair.contradicts_prior`), its kept links that contradict it are dropped now, and
-        the placements made from priors (``trust_initial_poses``) are made again. An estimation
-        cycle that began before the change is discarded. Returns what was dropped."""
+    # ------------------------------------------------------------------ priors
+    def priors(self) -> Dict[str, List[float]]:
+        """The priors in use, robot -> ``[x, y, yaw]`` (metres, radians: its map frame in the
+        priors' frame, :mod:`priors`): ``initial_poses`` as configured, with those given or
+        cleared while running. The config itself is never changed."""
+        with self._lock:
+            return dict(self._priors)
+
+    def set_prior(self, name: str, pose: Optional[Sequence[float]]) -> List[str]:
+        """Set (``[x, y, yaw]`` in the priors' frame, the meaning of ``initial_poses``) or remove
+        (None) one robot's prior while running. Its pairs are estimated again under the new prior
+        (the gate of :func:`pair.contradicts_prior`), its kept links that contradict it are dropped
+        now, and the placements made from priors (``trust_initial_poses``) are made again. An
+        estimation cycle that began before the change is discarded. Returns what was dropped."""
         events = []
         with self._lock:
-            priors = dict(self.config.initial_poses)
+            priors = dict(self._priors)
             if pose is None:
                 priors.pop(name, None)
             else:
                 priors[name] = [float(v) for v in pose]
-            # a new dict, not an update: the estimation thread may be reading the old one
-            self.config.initial_poses = priors
+            self._use_priors_locked(priors)
             self._prior_epoch += 1
             for k in [k for k in self._tried if name in k]:
                 del self._tried[k]
             tol_d, tol_a = self.config.initial_pose_tolerance
             for k, e in list(self._edges.items()):
-                if name not in k or e.parent not in priors or e.child not in priors:
+                P = relative_pose(priors, e.parent, e.child)
+                if name not in k or P is None:
                     continue
-                d, a = pose_distance(e.T, inverse(se2(*priors[e.parent])) @ se2(*priors[e.child]))
+                d, a = pose_distance(e.T, P)
                 if d > tol_d or a > tol_a:
                     del self._edges[k]
                     events.append('link %s -> %s dropped: it contradicts the new prior of %s by %.2f m, '
@@ -261,6 +304,95 @@ class MapMerger:
                 del self._placements[n]
             self.state_version += 1
         return events
+
+    def _use_priors_locked(self, priors: Dict[str, List[float]]) -> None:
+        # new objects, not updates: the estimation thread may be reading the old ones. The pairs'
+        # alignment (in the worker processes) reads the priors as its config's initial_poses
+        self._priors = priors
+        self._workers.config = dataclasses.replace(self.config, initial_poses=priors)
+
+    def set_prior_in_merged_frame(self, name: str, T: np.ndarray) -> List[str]:
+        """Give ``name`` the prior ``T``: the 3x3 pose of its map frame in the merged frame (rviz's
+        2D Pose Estimate), carried into the priors' frame (:func:`priors.in_priors_frame`; with no
+        other prior given, the merged frame becomes the priors' frame and the reference's prior
+        [0, 0, 0] until :meth:`clear_prior` leaves it alone). Returns what was dropped
+        (:meth:`set_prior`); raises :class:`priors.PriorRefused` saying why it cannot be used."""
+        with self._prior_lock:
+            ref = self.reference
+            pose, ref_too = in_priors_frame(name, T, ref, self.priors())
+            if ref_too:
+                self._implicit_ref_prior = ref
+                self.set_prior(ref, [0.0, 0.0, 0.0])
+            return self.set_prior(name, pose)
+
+    def clear_prior(self, name: str) -> bool:
+        """Remove ``name``'s prior (:meth:`set_prior` with None), and the reference's [0, 0, 0]
+        given by :meth:`set_prior_in_merged_frame` once it is the only prior left. False when
+        ``name`` had none."""
+        with self._prior_lock:
+            if name not in self.priors():
+                return False
+            self.set_prior(name, None)
+            ref = self._implicit_ref_prior
+            if ref and set(self.priors()) <= {ref}:
+                self.set_prior(ref, None)
+                self._implicit_ref_prior = ''
+            return True
+
+    def wants_init_pose(self, name: str) -> bool:
+        """Whether m-explore's ``init_pose_*`` of ``name`` are to be read: ``known_init_poses``,
+        and it has no prior yet."""
+        return self.config.known_init_poses and name not in self.priors()
+
+    def add_init_pose(self, name: str, pose: Sequence[float]) -> bool:
+        """Take m-explore's ``init_pose_*`` of ``name`` (``[x, y, yaw]``, metres, radians: its map
+        frame in a common frame) as its prior; or, once the grids said that these are spawn poses
+        in one frame all maps share (:meth:`check_spawn_poses`), give it [0, 0, 0]. Returns True
+        in the second case; raises :class:`priors.PriorRefused` when a number is not finite."""
+        pose = [float(v) for v in pose]
+        if not all(math.isfinite(v) for v in pose):
+            raise PriorRefused('not finite %s' % pose)
+        with self._prior_lock:
+            self._spawn_poses[name] = pose
+            if self._spawn_shared:
+                self.set_prior(name, [0.0, 0.0, 0.0])
+                return True
+            with self._lock:
+                # as if configured: read before the robot's maps are estimated, nothing to redo
+                self._use_priors_locked(dict(self._priors, **{name: pose}))
+        return False
+
+    def check_spawn_poses(self) -> Optional[Tuple[List[str], spawn.SharedFrame, List[str]]]:
+        """Until decided, whether the priors from :meth:`add_init_pose` are spawn poses of
+        robots whose maps share one frame (ROBOTIS's Gazebo set-up, :mod:`spawn`), on the maps
+        as they are; priors changed since (rviz) are left out. When the grids say so, every such
+        robot's prior becomes [0, 0, 0] (its map frame is the shared frame) and this returns
+        (those robots, the verdict, the links dropped); else None. The check runs again only
+        when the maps changed."""
+        with self._prior_lock:
+            if self._spawn_shared or len(self._spawn_poses) < 2:
+                return None
+            given = self.priors()
+            with self._lock:
+                grids = {r: self._maps[r].raw for r, p in self._spawn_poses.items()
+                         if given.get(r) == p and r in self._maps}
+            priors = {r: self._spawn_poses[r] for r in grids}
+            seen = tuple(sorted((r, id(g)) for r, g in grids.items()))
+            if seen == self._spawn_checked:
+                return None
+            self._spawn_checked = seen
+        verdict = spawn.spawn_poses_in_one_frame(self.config, grids, priors)
+        if verdict is None:
+            return None
+        events = []
+        with self._prior_lock:
+            self._spawn_shared = True
+            # (robots whose maps have not come yet too: the set-up is one)
+            given = self.priors()
+            changed = [r for r in sorted(self._spawn_poses) if given.get(r) == self._spawn_poses[r]]
+            for r in changed:
+                events += self.set_prior(r, [0.0, 0.0, 0.0])
+        return changed, verdict, events
 
     def reset(self) -> None:
         """Forget every transform (maps are kept)."""
@@ -528,7 +660,7 @@ class MapMerger:
             regraphed = graph_key is not None and graph_key != self._graph_key
             self._graph_key = graph_key
         # robots with no chain at their initial pose, when trusted
-        placement.add_priors(c, best, maps, ref)
+        placement.add_priors(c, best, maps, ref, self.priors())
         # the kept placement stays unless the new one is better
         new, events = placement.hysteresis(c, best, old, edges, ref, regraphed)
         # every placement refined against every placed map it overlaps, when one was adopted anew

@@ -8,13 +8,12 @@ Five steps, in this order (:meth:`merger.MapMerger._place` runs them):
    all verified links at once (a chain adds up its links' errors, the graph averages them,
    each link weighed by the information of its covariance), used only if every link agrees
    with its solution: within GRAPH_GATE, or within its own covariance (GRAPH_GATE_CHI2).
-3. :func:`add_priors`: robots with no chain, placed at their configured initial pose when
-   those are trusted.
+3. :func:`add_priors`: robots with no chain, placed at their prior when those are trusted.
 4. :func:`hysteresis`: per robot the kept placement stays unless the new one is more reliable
    by ``replace_margin``, its chain broke, or the pose graph moved everyone.
    Then :mod:`joint` refines every placement against every placed map it overlaps.
 5. :func:`pin`: each placement's covariance (its links' propagated along its chain, or
-   combined by the pose graph) and whether it is weakly pinned (``max_position_sigma``).
+   combined by the pose graph), whether it is weakly pinned (``max_position_sigma``) and why.
 """
 from __future__ import annotations
 
@@ -41,6 +40,8 @@ GRAPH_GATE = (0.3, math.radians(3.0))
 GRAPH_GATE_CHI2 = 16.27
 # the via of a robot placed at its configured initial pose
 PRIOR = 'initial_pose'
+# why a robot placed at its prior is weakly pinned
+AT_PRIOR = 'placed at its prior, no link pins it'
 
 Links = Dict[Tuple[str, str], Link]
 
@@ -61,8 +62,10 @@ class Placement:
     # not known (the reference, a robot at its prior, a link without one)
     cov: Optional[np.ndarray] = None
     # weakly pinned: 2-sigma position (worst direction) over ``max_position_sigma``, or placed
-    # at its prior (no link pins it)
+    # at its prior (no link pins it), or its covariance unknown
     weak: bool = False
+    # why it is weakly pinned, for people ('' when it is not): set with ``weak`` (:func:`pin`)
+    weak_reason: str = ''
     # 3x3 pose its chain of links gives (T before the pose graph moved it): what
     # :func:`chain_holds` checks the links against later
     chain_T: Optional[np.ndarray] = None
@@ -181,21 +184,38 @@ def pin(config: MergeConfig, placements: Dict[str, Placement], edges: Links, ref
                                  drift_covs(config, edges, links))
     for n, p in placements.items():
         if n == ref:
-            p.cov, p.weak = None, False
+            p.cov, p.weak, p.weak_reason = None, False, ''
             continue
         p.cov = covs.get(n)
-        p.weak = p.via == PRIOR or p.cov is None or 2.0 * position_sigma(p.cov) > config.max_position_sigma
+        p.weak_reason = weak_reason(p, config.max_position_sigma)
+        p.weak = bool(p.weak_reason)
 
 
-def add_priors(config: MergeConfig, best: Dict[str, Placement], names: Iterable[str], ref: str) -> None:
-    """Robots of ``names`` with no placement, placed at their initial pose relative to the
-    reference's, when ``trust_initial_poses`` is set."""
-    priors = config.initial_poses
+def weak_reason(p: Placement, max_position_sigma: float) -> str:
+    """Why a placement (not the reference's) is weakly pinned, for people; '' when it is not:
+    placed at its prior, or its covariance unknown, or its 2-sigma position (worst direction,
+    metres) over ``max_position_sigma`` (metres)."""
+    if p.via == PRIOR:
+        return AT_PRIOR
+    if p.cov is None:
+        return 'its covariance is unknown (a link on its chain has none)'
+    sigma = position_sigma(p.cov)
+    if 2.0 * sigma > max_position_sigma:
+        return '2-sigma %.3f m > max_position_sigma %.3f m' % (2.0 * sigma, max_position_sigma)
+    return ''
+
+
+def add_priors(config: MergeConfig, best: Dict[str, Placement], names: Iterable[str], ref: str,
+               priors: Dict[str, List[float]]) -> None:
+    """Robots of ``names`` with no placement, placed at their prior (``priors``: robot ->
+    ``[x, y, yaw]``, the priors in use, :meth:`MapMerger.priors`) relative to the reference's,
+    when ``trust_initial_poses`` is set."""
     if config.trust_initial_poses and ref in priors:
         for n in names:
             if n not in best and n in priors:
                 T = inverse(se2(*priors[ref])) @ se2(*priors[n])
-                best[n] = Placement(T, 0.0, 0.0, 0, PRIOR, (ref, n), time.time(), weak=True)
+                best[n] = Placement(T, 0.0, 0.0, 0, PRIOR, (ref, n), time.time(), weak=True,
+                                    weak_reason=AT_PRIOR)
 
 
 def hysteresis(config: MergeConfig, best: Dict[str, Placement], old: Dict[str, Placement],

@@ -104,3 +104,32 @@ def load_state(path: str) -> Dict[str, Any]:
     if not isinstance(data, dict) or not isinstance(data.get('edges', []), list):
         raise ValueError('%s: not a multi_map_merge state file (its verified links)' % path)
     return data
+
+
+class StateFile:
+    """A merger's links kept in ``path`` across runs (the ``state_file``): read once at start,
+    written again whenever they or the placements changed (``merger.state_version``, bumped by
+    :class:`MapMerger`). ``merger``: a :class:`MapMerger`."""
+
+    def __init__(self, path: str, merger):
+        self.path = path
+        self.merger = merger
+        self._saved = -1   # the merger's state_version last read or written
+
+    def restore(self) -> int:
+        """Give the merger the links saved in the file (each is verified again on the grids
+        before use); returns how many. ValueError when the file is not a state file."""
+        try:
+            return self.merger.restore_state(load_state(self.path))
+        finally:
+            self._saved = self.merger.state_version   # (what is in the file need not be written back)
+
+    def save(self) -> bool:
+        """Write the merger's state when it changed since last read or written; True when it
+        was written. OSError when it cannot be."""
+        version = self.merger.state_version
+        if version == self._saved:
+            return False
+        save_state(self.path, self.merger.export_state())
+        self._saved = version
+        return True

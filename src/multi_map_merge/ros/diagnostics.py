@@ -13,24 +13,11 @@ from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 
 from ..core.deform import REPORT_BENT
 from ..core.merger import RobotStatus
-from ..core.placement import PRIOR, Placement
 from ..core.state import placement_dict
 
 # how a placement's numbers (:func:`core.state.placement_dict`) are written on /diagnostics
 FORMAT = {'inlier_ratio': '%.3f', 'agreement': '%.3f', 'inliers': '%d', 'x': '%.3f', 'y': '%.3f', 'yaw': '%.4f',
           'sigma_position': '%.4f'}
-
-
-def weak_reason(pl: Placement, max_position_sigma: float) -> str:
-    """Why a weakly pinned placement is weak, for people ('' when it is not weak)."""
-    if not pl.weak:
-        return ''
-    if pl.via == PRIOR:
-        return 'placed at its prior, no link pins it'
-    d = placement_dict(pl)
-    if 'sigma_position' not in d:
-        return 'its covariance is unknown (a link on its chain has none)'
-    return '2-sigma %.3f m > max_position_sigma %.3f m' % (2.0 * d['sigma_position'], max_position_sigma)
 
 
 def map_age(st: RobotStatus, now: float) -> Optional[float]:
@@ -54,13 +41,13 @@ def stale_maps(status: Dict[str, RobotStatus], gone: Dict[str, bool], now: float
 
 
 def robot_diagnostic(robot: str, st: RobotStatus, gone: bool, now: float,
-                     out: Optional[DiagnosticStatus] = None, max_position_sigma: float = 0.1,
+                     out: Optional[DiagnosticStatus] = None,
                      stale_map_timeout: float = 0.0) -> DiagnosticStatus:
     """One robot's status: merged or not, via which robot, the placement, its quality and how
     well it is pinned (``sigma_position``: metres, '0.0000' for the reference, '-' when unknown;
     ``weak``), the last pair attempt, input errors, whether its map publisher is ``gone``, and
-    how old its last map is (``map_age_s``). A merged robot weakly pinned (over
-    ``max_position_sigma``, metres, or at its prior) is WARN, and so is a robot whose publisher
+    how old its last map is (``map_age_s``). A merged robot weakly pinned is WARN, saying why
+    (the placement's ``weak_reason``, :func:`core.placement.pin`), and so is a robot whose publisher
     is there but whose last map is older than ``stale_map_timeout`` seconds (0: off; its last map
     stays merged). The hardware id is the robot (readers key the robots' statuses by it).
     ``now``: wall seconds, for the placement's and the map's ages."""
@@ -91,8 +78,7 @@ def robot_diagnostic(robot: str, st: RobotStatus, gone: bool, now: float,
         s.level, s.message = DiagnosticStatus.OK, 'reference map'
     elif st.merged and st.placement.weak:
         s.level = DiagnosticStatus.WARN
-        s.message = 'merged via %s, weakly pinned: %s' % (st.placement.via,
-                                                          weak_reason(st.placement, max_position_sigma))
+        s.message = 'merged via %s, weakly pinned: %s' % (st.placement.via, st.placement.weak_reason)
     elif st.merged:
         s.level, s.message = DiagnosticStatus.OK, 'merged via %s' % st.placement.via
     elif st.linked_to:

@@ -280,7 +280,7 @@ def test_a_map_restarted_during_an_estimation_cycle_is_not_placed_by_it(intel):
 
 
 def test_prior_set_and_cleared_while_running(intel):
-    """set_initial_pose (the node's /<robot>/map_merge/prior and clear_prior): a prior that
+    """set_prior (the node's /<robot>/map_merge/prior and clear_prior): a prior that
     contradicts the kept link drops it at once, the pair is estimated again under it and
     rejected, and the robot is placed at its prior (trust_initial_poses); cleared, the pair is
     estimated again without the gate and the link places the robot where the maps say."""
@@ -293,8 +293,8 @@ def test_prior_set_and_cleared_while_running(intel):
     d, a = pose_error(m.placements()['b'].T, T_true)
     assert d < 0.1 and a < 1.0
     wrong = [5.0, 4.0, 1.0]             # 5 m and 1 rad from the truth
-    assert m.set_initial_pose('a', [0.0, 0.0, 0.0]) == []   # one prior alone gates nothing
-    events = m.set_initial_pose('b', wrong)
+    assert m.set_prior('a', [0.0, 0.0, 0.0]) == []   # one prior alone gates nothing
+    events = m.set_prior('b', wrong)
     assert len(events) == 1 and events[0].startswith('link a -> b dropped'), events
     m.estimate()
     pl = m.placements()['b']
@@ -304,12 +304,13 @@ def test_prior_set_and_cleared_while_running(intel):
     assert d < 1e-9 and a < 1e-9
     assert m.status()['b'].last_attempt.reason.startswith('contradicts initial poses')
     # moved: placed at the new prior
-    m.set_initial_pose('b', [6.0, 4.0, 1.0])
+    m.set_prior('b', [6.0, 4.0, 1.0])
     m.estimate()
     assert abs(m.placements()['b'].T[0, 2] - 6.0) < 1e-9
     # cleared: the maps place it again
-    assert m.set_initial_pose('b', None) == []
-    assert 'b' not in m.config.initial_poses
+    assert m.set_prior('b', None) == []
+    assert 'b' not in m.priors()
+    assert m.config.initial_poses == {}   # priors given while running are the merger's, not the config's
     m.estimate()
     pl = m.placements()['b']
     d, a = pose_error(pl.T, T_true)

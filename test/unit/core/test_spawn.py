@@ -136,3 +136,25 @@ def test_merged_at_identity_once_the_priors_are_read_as_spawn_poses(gazebo):
     for r in ('tb3_1', 'tb3_2'):
         d, a = pose_error(m.placements()[r].T, np.eye(3))
         assert d < 0.02 and a < math.degrees(0.005), (r, d, a)
+
+
+def test_the_merger_gives_spawn_poses_its_zero_priors_and_keeps_its_config(gazebo):
+    """MapMerger.add_init_pose / check_spawn_poses (the node's init_pose_* and its check before
+    each cycle): once the grids say the priors are spawn poses in one frame, every such robot's
+    prior is [0, 0, 0], those read later too; the configuration stays as loaded."""
+    from multi_map_merge.core.merger import MapMerger
+    cfg = MergeConfig(known_init_poses=True, workers=1)
+    m = MapMerger(cfg)
+    for r in ('tb3_0', 'tb3_2'):
+        assert m.wants_init_pose(r) and m.add_init_pose(r, SPAWN[r]) is False
+    assert m.priors() == {r: SPAWN[r] for r in ('tb3_0', 'tb3_2')}
+    assert m.check_spawn_poses() is None          # no map yet
+    m.update_map('tb3_0', gazebo['tb3_0'])
+    m.update_map('tb3_2', gazebo['tb3_2'])
+    changed, verdict, events = m.check_spawn_poses()
+    assert changed == ['tb3_0', 'tb3_2'] and verdict.robots == changed and events == []
+    assert m.priors() == {'tb3_0': [0.0, 0.0, 0.0], 'tb3_2': [0.0, 0.0, 0.0]}
+    assert m.check_spawn_poses() is None          # decided: not again
+    assert m.add_init_pose('tb3_1', SPAWN['tb3_1']) is True
+    assert m.priors()['tb3_1'] == [0.0, 0.0, 0.0]
+    assert cfg.initial_poses == {}

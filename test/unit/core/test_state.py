@@ -2,8 +2,10 @@
 file (MapMerger.export_state) and merge_maps' transforms report (report.transforms_report)."""
 import math
 
+import pytest
+
 from multi_map_merge.core.report import transforms_report
-from multi_map_merge.core.state import load_state, placement_dict, save_state
+from multi_map_merge.core.state import StateFile, load_state, placement_dict, save_state
 
 
 def test_one_placement_reads_the_same_in_the_state_file_and_the_transforms_report(halves_merged, tmp_path):
@@ -51,3 +53,21 @@ def test_a_link_survives_the_state_file_and_old_files_are_read():
     assert link_from_dict(old, 0.0).inlier_ratio == 0.4
     m = MapMerger()
     assert m.restore_state({'edges': [old, {'parent': 'a'}, 'junk', dict(old, x=float('nan'))]}) == 1
+
+
+def test_the_state_file_is_written_when_the_state_changed_and_read_back(halves_merged, tmp_path):
+    """StateFile (the node's ~state_file): written when the merger's state changed since last
+    read or written, not again while it stands; read back by a merger of a later run."""
+    from multi_map_merge.core.config import MergeConfig
+    from multi_map_merge.core.merger import MapMerger
+    path = str(tmp_path / 'state.yaml')
+    kept = StateFile(path, halves_merged)
+    assert kept.save() is True and load_state(path)['edges']
+    assert kept.save() is False                           # unchanged: not written again
+    later = StateFile(path, MapMerger(MergeConfig(workers=1)))
+    assert later.restore() == len(halves_merged.links()) >= 1
+    assert later.save() is False                          # what was read need not be written back
+    with open(path, 'w') as f:
+        f.write('[1, 2]\n')
+    with pytest.raises(ValueError, match='not a multi_map_merge state file'):
+        StateFile(path, MapMerger(MergeConfig(workers=1))).restore()

@@ -153,12 +153,12 @@ def test_a_weakly_pinned_robot_warns_with_its_2_sigma():
     assert b.weak and not c.weak and b.cov is not None and c.cov is not None
     sb, sc = position_sigma(b.cov), position_sigma(c.cov)
     assert abs(sb - 0.08) < 1e-3 and abs(sc - 0.01) < 1e-3     # a single link: its own covariance
-    s = robot_diagnostic('b', st['b'], False, NOW, max_position_sigma=0.1)
+    s = robot_diagnostic('b', st['b'], False, NOW)
     kv = values(s)
     assert s.level == DiagnosticStatus.WARN
     assert s.message == 'merged via a, weakly pinned: 2-sigma %.3f m > max_position_sigma 0.100 m' % (2 * sb)
     assert (kv['merged'], kv['weak'], kv['sigma_position']) == ('true', 'true', '%.4f' % sb)
-    s = robot_diagnostic('c', st['c'], False, NOW, max_position_sigma=0.1)
+    s = robot_diagnostic('c', st['c'], False, NOW)
     assert (s.level, s.message) == (DiagnosticStatus.OK, 'merged via a')
     assert (values(s)['weak'], values(s)['sigma_position']) == ('false', '%.4f' % sc)
     s = robot_diagnostic('a', st['a'], False, NOW)
@@ -166,13 +166,16 @@ def test_a_weakly_pinned_robot_warns_with_its_2_sigma():
 
 
 def test_a_robot_at_its_prior_or_of_unknown_covariance_is_weak():
-    from multi_map_merge.core.placement import PRIOR
-    at_prior = Placement(se2(1.0, 2.0, 0.0), 0.0, 0.0, 0, PRIOR, ('a', 'd'), NOW, weak=True)
+    """Why a placement is weak is the core's (placement.pin sets it); diagnostics says it."""
+    from multi_map_merge.core.config import MergeConfig
+    from multi_map_merge.core.placement import PRIOR, pin
+    at_prior = Placement(se2(1.0, 2.0, 0.0), 0.0, 0.0, 0, PRIOR, ('a', 'd'), NOW)
+    unknown = Placement(se2(1.0, 2.0, 0.0), 0.5, 0.9, 30, 'a', ('a', 'e'), NOW)
+    pin(MergeConfig(), {'d': at_prior, 'e': unknown}, {}, 'a', False)
     s = robot_diagnostic('d', RobotStatus(True, False, at_prior), False, NOW)
     assert s.level == DiagnosticStatus.WARN
     assert s.message == 'merged via initial_pose, weakly pinned: placed at its prior, no link pins it'
     assert (values(s)['weak'], values(s)['sigma_position']) == ('true', '-')
-    unknown = Placement(se2(1.0, 2.0, 0.0), 0.5, 0.9, 30, 'a', ('a', 'e'), NOW, weak=True)
     s = robot_diagnostic('e', RobotStatus(True, False, unknown), False, NOW)
     assert s.level == DiagnosticStatus.WARN
     assert s.message.endswith('its covariance is unknown (a link on its chain has none)')
@@ -196,7 +199,7 @@ def test_sigma_on_diagnostics_is_the_grids_covariance(halves_merged):
     pl = m.placements()['b']
     d = placement_dict(pl)
     assert 'sigma_position' in d
-    kv = values(robot_diagnostic('b', m.status()['b'], False, NOW, max_position_sigma=m.config.max_position_sigma))
+    kv = values(robot_diagnostic('b', m.status()['b'], False, NOW))
     assert abs(float(kv['sigma_position']) - d['sigma_position']) <= 5e-5
     assert kv['weak'] == str(d['weak']).lower()
 

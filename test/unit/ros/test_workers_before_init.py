@@ -1,4 +1,4 @@
-"""ros/node.py's workers_before_init: the node's ~workers read before rospy.init_node, so that
+"""ros/before_init.py's workers_before_init: the node's ~workers read before rospy.init_node, so that
 the worker pool is forked at the node's start with the size the user asked for (a pool resized
 later comes from a forkserver that imports OpenCV again). No master here: the argument form,
 and what happens when no master answers (test/ros/node_status.test reads it from a master)."""
@@ -9,7 +9,7 @@ import pytest
 pytest.importorskip('rospy')   # the ROS shell: not on a stack without ROS (make test-focal)
 pytest.importorskip('diagnostic_updater')
 
-from multi_map_merge.ros.node import workers_before_init  # noqa: E402
+from multi_map_merge.ros.before_init import workers_before_init  # noqa: E402
 
 
 @pytest.fixture
