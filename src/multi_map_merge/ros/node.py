@@ -40,7 +40,8 @@ from .convert import (
 )
 from .diagnostics import node_diagnostic, robot_diagnostic, stale_maps
 from .markers import markers_key, markers_msg
-from .params import check_library_param, reference_message, resolve_params, robot_of_map_topic
+from .node_log import reference_message
+from .params import check_library_param, resolve_params, robot_of_map_topic
 from .setup_check import foreign_robot_map_tf, foreign_tf_warning, rsp_version_warning
 
 #: seconds after start during which /tf is read for other senders of the node's transforms
@@ -85,9 +86,10 @@ def load_params():
     """Every parameter of the node, read once from the private namespace and validated
     (:func:`resolve_params`): an invalid value is logged as an error naming the parameter and
     what it accepts, and its default is used; an unknown name gets a warning naming the closest
-    known one; m-explore's names are read as aliases. The defaults are MergeConfig's, which
-    equal config/map_merge.yaml. Returns the :class:`Resolved` (its ``config`` is the
-    node's)."""
+    known one; m-explore's names are read as aliases. Every parameter, its default and what it
+    accepts are declared in the tables of :mod:`multi_map_merge.core.parameters` (MergeConfig
+    and config/map_merge.yaml are made from them). Returns the :class:`Resolved` (its
+    ``config`` is the node's)."""
     try:
         given = rospy.get_param('~', {})
     except KeyError:

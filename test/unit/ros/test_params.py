@@ -355,7 +355,7 @@ def test_a_reference_robot_discovery_would_never_find_is_an_error():
 
 def test_the_reference_line_says_which_robot_why_and_how_to_choose_it():
     from multi_map_merge.core.merger import REF_FIRST_BY_NAME, REF_PARAMETER, REF_PROPOSED, ReferenceChoice
-    from multi_map_merge.ros.params import reference_message
+    from multi_map_merge.ros.node_log import reference_message
     assert reference_message(ReferenceChoice('', False, REF_FIRST_BY_NAME)) == ''
     assert reference_message(ReferenceChoice('tb3_2', True, REF_PARAMETER)) == \
         'reference robot tb3_2 (set by ~reference_robot): the merged frame is its map frame'
