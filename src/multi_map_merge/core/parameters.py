@@ -257,10 +257,10 @@ class Parameter:
     ``default`` is the value of the field's type (lists and dicts copied per use); ``unit`` the
     unit of its value ('' for counts, ratios, names, switches); ``meaning`` one line (the YAML
     comment); ``doc`` the README's text (defaults to ``meaning``). ``former``: our own earlier
-    names, read silently as the parameter (the former one wins when ours is at its default, as
-    config/map_merge.yaml sets every parameter); ``deprecated``: (earlier name, why) pairs, read
-    with a warning; ``mexplore``: (m-explore's name, conversion of a string value or None),
-    read with an info line. ``library``: the library that reads it (not a MergeConfig field)."""
+    names, read as the parameter with an info line (the former one wins when ours is at its
+    default, as config/map_merge.yaml sets every parameter); ``deprecated``: (earlier name, why)
+    pairs, read with a warning; ``mexplore``: (m-explore's name, conversion of a string value or
+    None), read with an info line. ``library``: the library that reads it (not a MergeConfig field)."""
     name: str
     default: Any
     rule: Rule
@@ -500,10 +500,10 @@ MERGER_ROWS = (
           'wall agreement in the overlap, 0..1',
           'verification: wall agreement in the overlap, 0..1'),
         _P('min_overlap_cells', 400, _int(0), 'cells',
-          'cells known in both maps',
+          'known in both maps',
           'verification: cells known in both maps'),
         _P('agreement_tolerance', 2, _int(0), 'cells',
-          'cells a wall may be off and still agree',
+          'a wall may be off by this and still agree',
           'cells a wall may be off and still agree'),
         _P('pose_graph', True, _BOOL, '',
           'place robots by all verified links at once (cycles averaged)',
@@ -566,7 +566,7 @@ MERGER_ROWS = (
     ),
     _section('speed',
         _P('workers', 0, _int(0), 'processes',
-          'estimation worker processes; 0 = one per core (small maps inline), 1 = inline',
+          'estimation workers; 0 = one per core (small maps inline), 1 = inline',
           ("estimation worker processes (forked at the node's start, sharing its memory); 0 = one per core, "
            'and small problems (maps whose known parts hold under 400,000 cells in all) estimated in the '
            "node's own process; 1 = always in the node's own process; 2 or more = that many, always used")),
@@ -723,6 +723,7 @@ def resolve(given: Mapping[str, Any], tables: Sequence[Table] = TABLES, prefix: 
                 errors.append(problem if strict else '%s; %s' % (problem, fallback))
                 for n in reset:
                     kw.pop(n, None)
+    # (every table's names are known, also those of a table not resolved here)
     known = set(by_name) | set(aliases) | set(MEXPLORE_IGNORED) | {p.name for p in parameters()}
     for name in sorted(given):
         if name in known:
@@ -787,6 +788,8 @@ def yaml_text() -> str:
                 section = p.section
                 out.append('\n# %s%s\n' % (section, ' (%s only)' % t.name if t is NODE else ''))
             comment = '%s: %s' % (p.unit, p.meaning) if p.unit else p.meaning
+            if p.former:
+                comment += '; former name: %s' % ', '.join(p.former)
             out.append('%-34s # %s\n' % ('%s: %s' % (p.name, _yaml_value(p.default)), comment))
     return ''.join(out)
 
