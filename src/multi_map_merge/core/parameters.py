@@ -328,6 +328,9 @@ class Table:
         return [p.name for p in self.rows]
 
 
+# The tables' rows: _P(name, default, rule, unit, one-line meaning, README text, former=...,
+# deprecated=..., mexplore=..., library=...) by section (the YAML file's and README's order).
+
 NODE_ROWS = (
     _section('which maps',
         _P('robot_namespace_pattern', 'tb3_*', _PATTERN, '',
@@ -337,7 +340,7 @@ NODE_ROWS = (
            '`robots/*` those under `/robots`); a leading or trailing `/` is dropped'),
           mexplore=(('robot_namespace', _prefix_pattern),)),
         _P('robots', [], _ROBOTS, '',
-          'or list robot namespaces explicitly (no discovery)',
+          'robot namespaces listed explicitly (no discovery); [] = discover',
           ('explicit robot namespaces (a list, or one string of names separated by spaces, as '
            "`map_merge.launch`'s arg `robots` gives it; legal ROS names, a leading `/` dropped, repeats "
            'once); empty = discover')),
