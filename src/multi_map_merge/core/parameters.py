@@ -657,7 +657,6 @@ class Resolution:
     errors: List[str] = field(default_factory=list)
     warnings: List[str] = field(default_factory=list)
     notes: List[str] = field(default_factory=list)   # aliases read: worth an info line
-    given: Dict[str, Any] = field(default_factory=dict)   # values as given, by our name
 
 
 def resolve(given: Mapping[str, Any], tables: Sequence[Table] = TABLES, prefix: str = '~',
@@ -738,7 +737,7 @@ def resolve(given: Mapping[str, Any], tables: Sequence[Table] = TABLES, prefix: 
         else:
             warnings.append('unknown parameter %s%s ignored%s' % (prefix, name, hint))
     values = dict(defaults, **kw)
-    return Resolution(values, errors, warnings, notes, {n: raw[n] for n in raw})
+    return Resolution(values, errors, warnings, notes)
 
 
 def resolve_strictly(given: Mapping[str, Any], what: str = '') -> Resolution:

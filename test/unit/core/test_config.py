@@ -197,3 +197,18 @@ def test_generator_script_check_passes():
     r = subprocess.run([sys.executable, os.path.join(REPO, 'tools', 'gen_params.py'), '--check'],
                        capture_output=True, text=True, timeout=60)
     assert r.returncode == 0, r.stdout + r.stderr
+
+
+def test_readme_mexplore_table_names_every_alias_and_only_known_parameters():
+    """The README's *Switching from m-explore* table: each m-explore name the tables read is a
+    row naming the parameter it is read as; every row's parameter is one of the tables."""
+    text = read('README.md')
+    rows = re.findall(r'^\| `(\w+)` \| (?:`~(\w+)`[^|]*|none) \|', text, re.M)
+    here = {m: ours for m, ours in rows}
+    for p in P.parameters():
+        for alias, _ in p.mexplore:
+            assert here.get(alias) == p.name, (alias, p.name)
+    for alias in P.MEXPLORE_IGNORED:
+        assert here.get(alias) == '', alias
+    for m, ours in rows:
+        assert not ours or ours in ALL, 'README maps %s to ~%s, which no table declares' % (m, ours)
