@@ -577,7 +577,6 @@ MERGER_ROWS = (
 )
 
 
-
 def _thresholds(v: Dict[str, Any], d: Dict[str, Any], p: str) -> List[Tuple[str, str, Tuple[str, ...]]]:
     free = v.get('free_thresh', d['free_thresh'])
     occ = v.get('occupied_thresh', d['occupied_thresh'])
@@ -748,6 +747,9 @@ def resolve_strictly(given: Mapping[str, Any], what: str = '') -> Resolution:
     across parameters apply (the node's concern which robots it discovers)."""
     if not isinstance(given, Mapping):
         raise ParameterError('%sparameters must be a mapping name: value, not %s' % (what, type(given).__name__))
+    odd = sorted(repr(k) for k in given if not isinstance(k, str))
+    if odd:
+        raise ParameterError('%sparameter names must be strings, not %s' % (what, ', '.join(odd)))
     res = resolve(given, prefix='', strict=True, checks_of=(MERGER,))
     if res.errors:
         raise ParameterError('\n'.join(what + e for e in res.errors))

@@ -181,9 +181,12 @@ def test_from_dict_names_every_error_at_once():
     assert len(str(e.value).splitlines()) == 3
 
 
-def test_from_dict_needs_a_mapping():
+def test_from_dict_needs_a_mapping_of_names():
     with pytest.raises(P.ParameterError):
         MergeConfig.from_dict(['merge_rate', 2])
+    with pytest.raises(P.ParameterError) as e:
+        MergeConfig.from_dict({1: 2, 'merge_rate': 2})   # (YAML reads `1: 2` so)
+    assert 'names must be strings' in str(e.value)
 
 
 def test_offline_reference_need_not_match_the_nodes_discovery_pattern():
