@@ -9,7 +9,7 @@
 SPEC: {"paths": [map yaml...], "truth": [3x3 pose of map k in map 0's frame] or null,
 "reps": R, "pairs": [[a, b], ...]}. Measures, with the project's defaults (MergeConfig()):
   features_ms   FeatureExtractor on one map's levels (median over the maps of the pairs, R reps)
-  pair_ms       MapMerger.align_pair(a, b): matching + RANSAC + verification + ICP, in this
+  pair_ms       MapMerger.align_robots(a, b): matching + RANSAC + verification + ICP, in this
                 process (median over the pairs, R reps)
   pool_start_ms starting the merger's worker pool (once per node; not part of cold_ms)
   cold_ms       estimate() of a new MapMerger holding every map (features + every pair + placement,
@@ -259,7 +259,8 @@ def main():
     from multi_map_merge.core.config import MergeConfig
     from multi_map_merge.core.features import FeatureExtractor
     from multi_map_merge.core.mapio import load_map
-    from multi_map_merge.core.merger import MapMerger, RobotMap
+    from multi_map_merge.core.merger import MapMerger
+    from multi_map_merge.core.robot_map import RobotMap
 
     paths, truth, reps = spec['paths'], spec.get('truth'), int(spec['reps'])
     pairs = [tuple(p) for p in spec['pairs']]
@@ -289,14 +290,14 @@ def main():
 
     # (2)-(4) one pair in this process: features cached first, so only the pair is timed
     m0 = MapMerger(cfg)
-    rms = [RobotMap('r%02d' % k, g, k + 1, 0.0).at(g.resolution) for k, g in enumerate(grids)]
+    rms = [RobotMap('r%02d' % k, g, k + 1, 0.0).set_working_resolution(g.resolution) for k, g in enumerate(grids)]
     pair = []
     for a, b in pairs:
         m0._workers.features_of(rms[a])
         m0._workers.features_of(rms[b])
         for _ in range(reps):
             t = time.perf_counter()
-            m0.align_pair(rms[a], rms[b])
+            m0.align_robots(rms[a], rms[b])
             pair.append(time.perf_counter() - t)
 
     # The node starts its worker pool once, at its first cycle: start it (and import the

@@ -3,9 +3,8 @@
 
     python3 bench/versus.py [--commit a260f5a] [--rows 'house 4' 'intel 4' ...] [--rounds 11]
 
-Did a change cost speed? A ratio to m-explore taken in another run cannot say: this VM's speed
-drifts, and m-explore's own cycle with it (its intel-sized x8 estimation took 3.2 s in one
-make bench, 1.4-2.8 s in later ones). Here the three run side by side, round after round (as
+Did a change cost speed? A ratio to m-explore taken in another run cannot say: a machine's speed
+drifts between runs, and m-explore's own cycle with it. Here the three run side by side, round after round (as
 bench/duel.py pairs run_bench.py's figures): this tree's cold cycle (bench/ours.py
 --serve-estimate), the other commit's (the same script of that commit, checked out into a
 temporary git worktree: commits from a260f5a on have it), and m-explore's

@@ -1,14 +1,16 @@
 """Helpers shared by the rostest scripts in this directory (not a test itself): the shipped
 maps, the shared data, waiting, a listener of the merger's outputs, a player of robots' maps,
 pieces of a map at known poses, comparisons with the truth, the set-up of a test on such
-pieces (:class:`PiecesTest`), stopping a launch."""
+pieces (:class:`PiecesTest`), stopping a launch, making a bag of LDS-02 driver scans."""
 import math
 import os
 import signal
 import subprocess
+import sys
 import threading
 import time
 import unittest
+from typing import Dict, List, Sequence
 
 import cv2
 import numpy as np
@@ -25,6 +27,7 @@ from multi_map_merge.core.mapio import load_map
 from multi_map_merge.core.transforms import cell_to_metric, pose_distance, se2, xyyaw
 from multi_map_merge.lab.pieces import cut_piece, split_rects
 from multi_map_merge.ros.convert import grid_to_msg, quaternion_yaw, set_yaw, transform_msg
+from multi_map_merge.ros.diagnostics import diagnostics_by_robot
 
 NumpyGrid = numpy_msg(OccupancyGrid)
 MERGER = 'map_merge'   # the merger node's name in the rostests (launch/map_merge.launch)
@@ -70,6 +73,17 @@ def data_file(name):
     return path
 
 
+def make_lds02_driver_bag(test: unittest.TestCase, bag: str, robots: int) -> None:
+    """``make_robot_bags --lds02-driver``: a bag of ``robots`` robots' sensors alone (no SLAM),
+    their scans shaped as the LDS-02 driver publishes them (seed 2), written to ``bag``; a
+    failure fails ``test``."""
+    pkg = rospkg.RosPack().get_path('multi_map_merge')
+    r = subprocess.run([sys.executable, os.path.join(pkg, 'scripts', 'make_robot_bags'), '-o', bag,
+                        '--robots', str(robots), '--seed', '2', '--no-single', '--sensors-only', '--lds02-driver'],
+                       stdout=subprocess.PIPE, stderr=subprocess.PIPE, universal_newlines=True)
+    test.assertEqual(r.returncode, 0, r.stderr)
+
+
 # ---------------------------------------------------------------- waiting and listening
 def wait_until(pred, timeout, period=0.1):
     """Poll ``pred`` until it returns something truthy (returned) or ``timeout`` s pass (None)."""
@@ -80,6 +94,44 @@ def wait_until(pred, timeout, period=0.1):
             return v
         time.sleep(period)
     return None
+
+
+def wait_for_merge(robots: Sequence[str], timeout: float, settle: float = 0.0) -> Dict[str, Dict[str, str]]:
+    """Per-robot key/values of the merger's /diagnostics once every robot in ``robots`` is
+    merged and ``settle`` more seconds have passed (or at ``timeout``)."""
+    latest: Dict[str, Dict[str, str]] = {}
+
+    sub = rospy.Subscriber('/diagnostics', DiagnosticArray, diagnostics_by_robot, callback_args=latest)
+    end = time.time() + timeout
+    merged_since = None
+    while time.time() < end and not rospy.is_shutdown():
+        done = all(latest.get(r, {}).get('merged') == 'true' for r in robots)
+        if done and merged_since is None:
+            merged_since = time.time()
+        if done and time.time() - merged_since >= settle:
+            break
+        time.sleep(0.2)
+    sub.unregister()
+    return dict(latest)
+
+
+def lookup_transforms(parent: str, children: List[str], timeout: float) -> Dict[str, np.ndarray]:
+    """tf2 lookups ``parent -> child`` (3x3 poses, metres); children not found are left out."""
+    buf = tf2_ros.Buffer()
+    tf2_ros.TransformListener(buf)
+    out = {}
+    end = time.time() + timeout
+    for c in children:
+        while time.time() < end and not rospy.is_shutdown():
+            try:
+                t = buf.lookup_transform(parent, c, rospy.Time(0), rospy.Duration(0.5))
+                tr = t.transform
+                out[c] = se2(tr.translation.x, tr.translation.y, quaternion_yaw(tr.rotation))
+                break
+            except (tf2_ros.LookupException, tf2_ros.ConnectivityException,
+                    tf2_ros.ExtrapolationException):
+                time.sleep(0.1)
+    return out
 
 
 class Listener:

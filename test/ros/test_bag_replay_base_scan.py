@@ -28,11 +28,10 @@ import time
 import unittest
 
 import numpy as np
-import rospkg
 import rospy
 import rostest
 from nav_msgs.msg import OccupancyGrid
-from rostest_helpers import skip_without_gmapping, stop_launch
+from rostest_helpers import make_lds02_driver_bag, skip_without_gmapping, stop_launch
 
 START = 60.0     # s into the bag: the robot is driving
 PLAY = 25.0      # s of wall time each replay is given (rate 1)
@@ -86,13 +85,9 @@ class TestBagReplayBaseScan(unittest.TestCase):
 
     def test_base_scan_bags_map_only_through_the_relay(self):
         skip_without_gmapping(self)
-        pkg = rospkg.RosPack().get_path('multi_map_merge')
         tmp = tempfile.mkdtemp(prefix='mmm_base_scan_')
         bag = os.path.join(tmp, 'real.bag')
-        r = subprocess.run([sys.executable, os.path.join(pkg, 'scripts', 'make_robot_bags'), '-o', bag,
-                            '--robots', '1', '--seed', '2', '--no-single', '--sensors-only', '--lds02-driver'],
-                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, universal_newlines=True)
-        self.assertEqual(r.returncode, 0, r.stderr)
+        make_lds02_driver_bag(self, bag, robots=1)
 
         # as shipped: the relay says what it does, gmapping maps
         maps = self.replay(bag, os.path.join(tmp, 'relay'))

@@ -9,11 +9,11 @@ import numpy as np
 import rospy
 import rostest
 from nav_msgs.srv import GetMap
-from rostest_helpers import data_file, make_pieces, publish_latched
+from rostest_helpers import data_file, make_pieces, publish_latched, wait_for_merge
 
 from multi_map_merge.core.mapio import load_map
 from multi_map_merge.ros.convert import NumpyGrid
-from multi_map_merge.ros.tools import init_node, wait_for_merge
+from multi_map_merge.ros.tools import init_node
 
 ROBOTS = ['tb3_0', 'tb3_1']
 

@@ -8,11 +8,11 @@ import unittest
 
 import rospy
 import rostest
-from rostest_helpers import data_file, make_pieces, publish_latched
+from rostest_helpers import data_file, lookup_transforms, make_pieces, publish_latched, wait_for_merge
 
 from multi_map_merge.core.mapio import load_map
 from multi_map_merge.core.transforms import xyyaw
-from multi_map_merge.ros.tools import init_node, lookup_transforms, wait_for_merge
+from multi_map_merge.ros.tools import init_node
 
 ROBOTS = ['tb3_0', 'tb3_1']
 

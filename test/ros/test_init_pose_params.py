@@ -10,12 +10,12 @@ import unittest
 
 import rospy
 import rostest
-from rostest_helpers import shared_data
+from rostest_helpers import lookup_transforms, shared_data, wait_for_merge
 
 from multi_map_merge.core.mapio import load_map
 from multi_map_merge.core.transforms import xyyaw
 from multi_map_merge.ros.convert import NumpyGrid, grid_to_msg
-from multi_map_merge.ros.tools import init_node, lookup_transforms, wait_for_merge
+from multi_map_merge.ros.tools import init_node
 
 ROBOTS = ['tb3_0', 'tb3_1', 'tb3_2', 'tb3_3']
 

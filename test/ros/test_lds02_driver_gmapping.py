@@ -16,13 +16,12 @@ made maps and the team merged; without the resampling gmapping reached its updat
 under 25% of the scans. Skips where ROS has no gmapping."""
 import os
 import subprocess
-import sys
 import tempfile
 import unittest
 
 import rospkg
 import rostest
-from rostest_helpers import skip_without_gmapping, stop_launch
+from rostest_helpers import make_lds02_driver_bag, skip_without_gmapping, stop_launch
 
 from multi_map_merge.lab.scans_processed import bag_scans_and_odom, count_updates, gmapping_updates, load_rule
 from multi_map_merge.ros.replay import BAG_EPOCH, record_replay
@@ -58,10 +57,7 @@ class TestLds02DriverGmapping(unittest.TestCase):
         pkg = rospkg.RosPack().get_path('multi_map_merge')
         tmp = tempfile.mkdtemp(prefix='mmm_ld08_')
         bag = os.path.join(tmp, 'driver.bag')
-        r = subprocess.run([sys.executable, os.path.join(pkg, 'scripts', 'make_robot_bags'), '-o', bag,
-                            '--robots', '2', '--seed', '2', '--no-single', '--sensors-only', '--lds02-driver'],
-                           capture_output=True, text=True)
-        self.assertEqual(r.returncode, 0, r.stderr)
+        make_lds02_driver_bag(self, bag, robots=2)
         self.assert_driver_shaped(bag)
         logs = os.path.join(tmp, 'logs')
         init_node('test_lds02_driver_gmapping')

@@ -129,7 +129,8 @@ class TestLifecycle(unittest.TestCase):
 
     def test_2_restart_of_the_merger_reloads_transforms(self):
         path = rospy.get_param('/map_merge/transforms_file')
-        self.assertTrue(wait_until(lambda: os.path.exists(path), 10.0), 'transforms file not written')
+        self.assertTrue(wait_until(lambda: os.path.exists(path), 10.0),
+                        'state file (~transforms_file, its former name) not written')
         saved = yaml.safe_load(open(path))
         self.assertTrue(any({e['parent'], e['child']} == {'tb3_0', 'tb3_1'} for e in saved['edges']))
         # A second merger that cannot estimate anything itself (min_matches out of reach): if it

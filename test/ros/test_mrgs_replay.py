@@ -11,7 +11,7 @@ import unittest
 import cv2
 import numpy as np
 import rostest
-from rostest_helpers import shared_data, stop_launch
+from rostest_helpers import lookup_transforms, shared_data, stop_launch, wait_for_merge
 
 from multi_map_merge.core.config import MergeConfig
 from multi_map_merge.core.grid import OCCUPIED
@@ -19,7 +19,7 @@ from multi_map_merge.core.merger import MapMerger
 from multi_map_merge.core.transforms import cell_to_metric, pose_distance, pose_to_image
 from multi_map_merge.core.verify import agreement
 from multi_map_merge.ros.replay import read_bag_maps
-from multi_map_merge.ros.tools import init_node, lookup_transforms, wait_for_map, wait_for_merge
+from multi_map_merge.ros.tools import init_node, wait_for_map
 
 ROBOTS = ['tb3_0', 'tb3_1', 'tb3_2']
 

@@ -1,4 +1,4 @@
-"""Step 5 of the paper: warp every placed map into the merged frame and composite them.
+"""Step (5) (docs/design.md): warp every placed map into the merged frame and composite them.
 
 The merged canvas is axis-aligned in the merged frame on the reference map's cell lattice, so
 the reference is copied without resampling. It grows to cover every merged map (not only the

@@ -1,5 +1,5 @@
-"""How well a link is pinned: a correlative search of the wall likelihood around a link's pose
-(issue 22), pure numpy / OpenCV.
+"""How well a link is pinned: a correlative search of the wall likelihood around a link's pose,
+pure numpy / OpenCV.
 
 An inlier ratio or a wall agreement of 0.99 says the walls meet; it does not say in which
 directions they could slide. Through a corridor the walls pin the pose across it and hardly
@@ -34,7 +34,7 @@ from .transforms import cell_to_metric, se2
 
 TRUNCATE = 3.0          # cells: a wall farther than this from any wall costs as much as this
 # the likelihood's temperature (cost units: cells^2 of mean squared distance): calibrated on the
-# chain and flood-out sweeps of lab/pinning_sweep.py so that the true pose lies within the 95%
+# chain and flood-out sweeps of bench/pinning_sweep.py so that the true pose lies within the 95%
 # ellipse in at least 95% of links (docs/measurements.md)
 TEMPERATURE = 0.05
 MAX_POINTS = 800        # wall cells scored (evenly thinned)

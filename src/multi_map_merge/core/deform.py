@@ -1,4 +1,4 @@
-"""Past rigid (issue 31, step 5): every placed map bent, a little, onto the walls the other maps
+"""Step (5) past rigid (docs/design.md): every placed map bent, a little, onto the walls the other maps
 give it, in the merged map only.
 
 A gmapping map bends: its far parts sit shifted and turned against the frame it is drawn in

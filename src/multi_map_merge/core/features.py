@@ -1,4 +1,4 @@
-"""Step 1-2a of the paper: a grid becomes an image, AKAZE finds features in it.
+"""Step (1) (docs/design.md): a grid becomes an image, AKAZE finds features in it.
 
 Features are computed on the known part of the grid only (its bounding box plus a margin):
 gmapping publishes a large canvas that is mostly unknown, and AKAZE's cost grows with the

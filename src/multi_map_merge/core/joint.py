@@ -1,4 +1,4 @@
-"""Placement by what all the overlaps say (issue 31): every robot's placement refined against
+"""Placement by what all the overlaps say: every robot's placement refined against
 every placed map it overlaps, after the pose graph.
 
 A link is fitted on its pair's overlap, which on gmapping maps lies mostly near where the robots

@@ -32,7 +32,7 @@ SWITCH_MIN = 0.01
 
 
 @dataclass
-class Edge:
+class Link:
     """A verified transform between two robots' map frames: ``T`` maps metres in ``child``'s
     frame to metres in ``parent``'s frame. ``cov``: 3x3 covariance of (x, y, yaw) of ``T``
     (metres^2, radians^2; x, y in ``parent``'s frame), from the grids (:mod:`covariance`);
@@ -57,7 +57,7 @@ class Edge:
         return self.T if parent == self.parent else inverse(self.T)
 
 
-def replacement(config: MergeConfig, old: Optional[Edge], T: np.ndarray, r: PairResult,
+def replacement(config: MergeConfig, old: Optional[Link], T: np.ndarray, r: PairResult,
                 agreement_now: Callable[[], float]) -> Optional[Tuple[float, int]]:
     """Whether an accepted pair result ``r`` (pose ``T`` in metres) replaces the kept link ``old``:
     None to keep ``old``, else the (inlier ratio, inliers) the new link is kept with.

@@ -1,4 +1,4 @@
-"""Steps 2b-3 of the paper: match features, estimate a rigid transform by RANSAC, score it.
+"""Steps (2)-(3) (docs/design.md): match features, estimate a rigid transform by RANSAC, score it.
 
 - Matching: brute force on Hamming distance, keeping each feature's two nearest neighbours
   as candidates, and neither a ratio test nor cross-check as a filter. Grid maps repeat

@@ -27,10 +27,11 @@ import numpy as np
 from . import bend, corroborate, deform, joint, links, placement, verify
 from .composite import Lattice, Patch, composite, lattice_for, warp_patch
 from .config import MergeConfig
-from .grid import DEFAULT_FREE_THRESH, DEFAULT_OCC_THRESH, Grid, rescale, same_grid
-from .links import Edge
+from .grid import DEFAULT_FREE_THRESH, DEFAULT_OCC_THRESH, Grid, same_grid
+from .links import Link
 from .pair import PairResult, align_pair
 from .placement import Placement
+from .robot_map import RobotMap
 from .state import link_dict, link_from_dict, placement_dict
 from .transforms import image_to_pose, inverse, pose_distance, se2
 from .workers import PairWorkers
@@ -64,29 +65,6 @@ class ReferenceChoice:
     fixed: bool
     why: str                           # REF_PARAMETER, REF_PROPOSED or REF_FIRST_BY_NAME
     with_maps: Tuple[str, ...] = ()    # the robots with a map, by name
-
-
-@dataclass
-class RobotMap:
-    """The latest grid of one robot. ``grid`` is at the merger's working resolution (the
-    reference's): a map of another resolution is rescaled, not rejected."""
-
-    name: str
-    raw: Grid           # as received
-    version: int
-    received: float     # seconds (time.time()) when it arrived
-    grid: Grid = None   # type: ignore[assignment]  # working-resolution grid, set by at()
-    life: int = 0       # how often the robot was forgotten (map restarts) before this map
-
-    @property
-    def key(self) -> tuple:
-        """What anything derived from the working grid is cached under: (version, resolution)."""
-        return self.version, self.grid.resolution
-
-    def at(self, resolution: float) -> 'RobotMap':
-        if self.grid is None or abs(self.grid.resolution - resolution) > 1e-9:
-            self.grid = rescale(self.raw, resolution)
-        return self
 
 
 @dataclass
@@ -127,14 +105,14 @@ class MapMerger:
         self._reference_fixed = bool(c.reference_robot)   # decide_reference: settled for good
         self._reference_why = REF_PARAMETER if c.reference_robot else REF_FIRST_BY_NAME
         self._workers = PairWorkers(c)   # crops and features of the maps, the worker pool
-        self._edges: Dict[Tuple[str, str], Edge] = {}
+        self._edges: Dict[Tuple[str, str], Link] = {}
         self._tried: Dict[Tuple[str, str], Tuple[int, int]] = {}
         self._results: Dict[Tuple[str, str], PairResult] = {}
         self._placements: Dict[str, Placement] = {}
         self._patches: Dict[str, Tuple[tuple, Optional[Patch]]] = {}
         self._lives: Dict[str, int] = {}   # per robot: how often it was forgotten
         self._errors: Dict[str, str] = {}
-        self._restored: Dict[Tuple[str, str], Edge] = {}
+        self._restored: Dict[Tuple[str, str], Link] = {}
         self._merged = None       # (patch identities, merged grid) of the last compose
         self._graph_key = None    # the links the last pose-graph placement was made of
         self._joint_key = None    # the maps the last joint refinement was made of (_joint)
@@ -304,7 +282,7 @@ class MapMerger:
         if ref not in maps:
             return ref, {}
         res = maps[ref].raw.resolution
-        return ref, {n: m.at(res) for n, m in maps.items()}
+        return ref, {n: m.set_working_resolution(res) for n, m in maps.items()}
 
     # ------------------------------------------------------------------ the algorithm
     def estimate(self) -> List[str]:
@@ -381,9 +359,9 @@ class MapMerger:
         with self._lock:
             return dict(self._placements)
 
-    def links(self) -> Dict[Tuple[str, str], Edge]:
+    def links(self) -> Dict[Tuple[str, str], Link]:
         """The verified links kept, per pair (parent, child): what the placements are made of
-        (an :class:`Edge` maps metres of the child's frame to the parent's)."""
+        (a :class:`Link` maps metres of the child's frame to the parent's)."""
         with self._lock:
             return dict(self._edges)
 
@@ -514,13 +492,13 @@ class MapMerger:
         with self._lock:
             if self._edges.get(key) is not old:
                 return               # forgotten (reset, map restart) meanwhile
-            self._edges[key] = Edge(pa.name, ch.name, T, inlier_ratio, r.agreement, inliers, r.matches,
+            self._edges[key] = Link(pa.name, ch.name, T, inlier_ratio, r.agreement, inliers, r.matches,
                                     time.time(), r.overlap, r.cov, r.bend, r.centre)
             self.state_version += 1
 
-    def align_pair(self, pa: RobotMap, ch: RobotMap, seed: int = 0) -> PairResult:
-        """Steps (2)-(4) for one pair, here in this process (:func:`pair.align_pair`): cells of
-        ``ch`` -> cells of ``pa``."""
+    def align_robots(self, pa: RobotMap, ch: RobotMap, seed: int = 0) -> PairResult:
+        """Steps (2)-(4) for two robots' maps, here in this process (:func:`pair.align_pair` of
+        their crops and features): cells of ``ch`` -> cells of ``pa``."""
         return align_pair(self.config, self._workers.input(pa), self._workers.input(ch), seed)
 
     def _place(self, maps: Dict[str, RobotMap], ref: str) -> List[str]:

@@ -1,19 +1,20 @@
-"""Steps 2-4 for one pair of maps, as plain functions of plain data, so that they can run in
+"""Steps (2)-(4) (docs/design.md) for one pair of maps, as plain functions of plain data, so that they can run in
 worker processes (see :mod:`merger`): match, RANSAC, verify on the grids, refine.
 
 Worker processes keep the estimation's Python work off the node's interpreter: threads would
-share its GIL with the timers that publish /map and TF.
+share its GIL with the timers that publish /map and TF. What a process derives from a map
+for the next pair is kept in :mod:`cache`.
 """
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Dict, Optional, Tuple
+from typing import Optional, Tuple
 
 import cv2
 import numpy as np
 
-from . import bend, covariance, matching, verify
+from . import bend, cache, covariance, matching, verify
 from .config import MergeConfig
 from .features import FeatureExtractor, Features, coarsening
 from .grid import known_bbox
@@ -110,21 +111,11 @@ def _grid_cells(A: np.ndarray, pa: PairInput, ch: PairInput) -> np.ndarray:
     return se2(pa.offset[0], pa.offset[1], 0.0) @ A @ se2(-ch.offset[0], -ch.offset[1], 0.0)
 
 
-# Per-process caches: a worker sees the same maps again and again (a map takes part in N-1
-# pairs), so what is derived from a map is derived once per map version in each process.
-_EXTRACTORS: Dict[tuple, FeatureExtractor] = {}
-_DERIVED: Dict[tuple, object] = {}
-_DERIVED_OWNER: object = None
-
-
 def compute_features(config: MergeConfig, levels: np.ndarray, factor: Optional[int] = None) -> Features:
     """(1) AKAZE features of a grid's levels, with the configured extractor (at ``factor``
     cells per pixel, or the one the map's known area calls for)."""
     key = (config.akaze_threshold, config.max_features, config.feature_cells)
-    fe = _EXTRACTORS.get(key)
-    if fe is None:
-        fe = _EXTRACTORS[key] = FeatureExtractor(*key)
-    return fe(levels, factor)
+    return cache.extractor(key, FeatureExtractor)(levels, factor)
 
 
 def describe_version(config: MergeConfig, levels: np.ndarray, owner: str, name: str, version: int) -> Features:
@@ -132,7 +123,7 @@ def describe_version(config: MergeConfig, levels: np.ndarray, owner: str, name: 
     :func:`compute_features`; what this process derived from the map's former versions is
     dropped first: it is stale, and a description is a worker's largest working set (AKAZE's
     scale space), so the two should not be held at once."""
-    _forget_other_versions(owner, name, version)
+    cache.forget_other_versions(owner, name, version)
     return compute_features(config, levels)
 
 
@@ -154,37 +145,8 @@ def _at_one_scale(config: MergeConfig, pa: PairInput, ch: PairInput) -> Tuple[Fe
     def at(p: PairInput) -> Features:
         if p.features.factor == f:
             return p.features
-        return _derived('features/%d' % f, p, lambda p: compute_features(config, p.levels, f))
+        return cache.derived('features/%d' % f, p, lambda p: compute_features(config, p.levels, f))
     return at(pa), at(ch)
-
-
-def _derived(what: str, p: PairInput, make):
-    """``make(p)``, cached per (merger, robot, resolution) in this process for the map's latest
-    version only: maps that grow all the time would otherwise leave every older version's wall
-    masks here until the cache's bound. And for one merger only (the node has one): a process
-    that served a merger before (a test, a benchmark's cold cycles, a merger made anew) would
-    otherwise keep that merger's data until the bound."""
-    _forget_other_versions(p.owner)
-    key = (what, p.name, p.resolution)
-    v = _DERIVED.get(key)
-    if v is None or v[0] != p.version:
-        if len(_DERIVED) > 256:
-            _DERIVED.clear()
-        _DERIVED.pop(key, None)   # the old version freed before the new one is made
-        v = _DERIVED[key] = (p.version, make(p))
-    return v[1]
-
-
-def _forget_other_versions(owner: str, name: Optional[str] = None, version: Optional[int] = None) -> None:
-    """Drop the derived data of every merger but ``owner``, and of ``name``'s map in versions
-    other than ``version``."""
-    global _DERIVED_OWNER
-    if owner != _DERIVED_OWNER:
-        _DERIVED.clear()
-        _DERIVED_OWNER = owner
-    elif name is not None:
-        for key in [k for k, v in _DERIVED.items() if k[1] == name and v[0] != version]:
-            del _DERIVED[key]
 
 
 def _known(p: PairInput) -> tuple:
@@ -192,22 +154,22 @@ def _known(p: PairInput) -> tuple:
     def make(p):
         box = known_bbox(p.levels)
         return box, _known_centre(p.levels, box)
-    return _derived('known', p, make)
+    return cache.derived('known', p, make)
 
 
 def _field(p: PairInput) -> WallField:
     """Nearest walls of a map (needed where it is a pair's parent only)."""
-    return _derived('field', p, lambda p: WallField(p.levels))
+    return cache.derived('field', p, lambda p: WallField(p.levels))
 
 
 def _walls(p: PairInput, tolerance: int) -> verify.Walls:
     """A map's walls for verification (needed where it is a pair's parent only)."""
-    return _derived('walls/%d' % tolerance, p, lambda p: verify.Walls.of(p.levels, tolerance))
+    return cache.derived('walls/%d' % tolerance, p, lambda p: verify.Walls.of(p.levels, tolerance))
 
 
 def _wall_points(p: PairInput) -> np.ndarray:
     """Wall cells of a map (ICP source points, where it is a pair's child)."""
-    return _derived('points', p, lambda p: occupied_points(p.levels, _known(p)[0]))
+    return cache.derived('points', p, lambda p: occupied_points(p.levels, _known(p)[0]))
 
 
 def prior_link(config: MergeConfig, pa: PairInput, ch: PairInput) -> Optional[np.ndarray]:
@@ -292,7 +254,7 @@ def _pin(config: MergeConfig, pa: PairInput, ch: PairInput, r: PairResult) -> No
     crops' cells). Where the search finds a pose whose walls meet clearly better than ICP's
     (ICP stopped in a local minimum: along a corridor, a wall's end a few cells off), that
     pose, polished by ICP, replaces ``r.A`` if it also verifies at least as well."""
-    field = _derived('costfield', pa, _cost_field)
+    field = cache.derived('costfield', pa, _cost_field)
     pts = _wall_points(ch)
     p = covariance.pinning(pa.levels, ch.levels, r.A, field, pts)
     if p is None:
@@ -380,7 +342,7 @@ def _near_prior(config: MergeConfig, pa: PairInput, ch: PairInput, src: np.ndarr
     # the window is then the tolerance's, wherever the walls lie
     origin = (inverse(cell_to_metric(ch.resolution, ch.origin)) @ np.array([0.0, 0.0, 1.0]))[:2]
     pivot = origin - np.array(ch.offset, np.float64)
-    found = covariance.search(_derived('costfield', pa, _cost_field), _wall_points(ch), A0, half,
+    found = covariance.search(cache.derived('costfield', pa, _cost_field), _wall_points(ch), A0, half,
                               min(math.degrees(tol_a), PRIOR_SEARCH_AT_MOST[1]), pivot)
     if found is None:
         return None

@@ -28,7 +28,7 @@ import numpy as np
 from . import drift, posegraph
 from .config import MergeConfig
 from .covariance import position_sigma
-from .links import SAME_LINK, Edge
+from .links import SAME_LINK, Link
 from .transforms import inverse, pose_distance, se2, xyyaw
 
 # a pose graph whose result disagrees with one of its links by more than this (metres,
@@ -42,7 +42,7 @@ GRAPH_GATE_CHI2 = 16.27
 # the via of a robot placed at its configured initial pose
 PRIOR = 'initial_pose'
 
-Links = Dict[Tuple[str, str], Edge]
+Links = Dict[Tuple[str, str], Link]
 
 
 @dataclass

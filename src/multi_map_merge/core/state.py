@@ -6,9 +6,9 @@ On reload the links are *restored, not trusted*: each is verified again on the r
 when both maps have arrived, and dropped if it no longer agrees. The file is written
 atomically (temporary file + rename), so a crash never leaves half a file.
 
-Not to be confused with ``merge_maps --transforms``' file (:func:`offline.transforms_report`,
-read by ``evaluate_map --transforms``): every map frame's pose in the merged frame, for people
-and scripts; the merger never reads it back.
+Not to be confused with the transforms report that ``merge_maps --transforms`` writes
+(:mod:`report`, read by ``evaluate_map --transforms``): every map frame's pose in the merged
+frame, for people and scripts; the merger never reads it back.
 """
 from __future__ import annotations
 
@@ -20,12 +20,12 @@ import numpy as np
 import yaml
 
 from . import covariance
-from .links import Edge
+from .links import Link
 from .placement import Placement
 from .transforms import se2, xyyaw
 
 
-def link_dict(e: Edge) -> Dict[str, Any]:
+def link_dict(e: Link) -> Dict[str, Any]:
     """A verified link as plain data (the state file's ``edges``): x, y, yaw (metres, radians:
     the pose of the child's map frame in the parent's), parent, child, inlier_ratio,
     agreement, inliers, matches, bend (metres its overlap's halves land apart, :mod:`bend`; 0
@@ -38,12 +38,12 @@ def link_dict(e: Edge) -> Dict[str, Any]:
             'centre': None if e.centre is None else [float(v) for v in e.centre], **cov_fields(e.cov)}
 
 
-def link_from_dict(d: Dict[str, Any], stamp: float) -> Edge:
+def link_from_dict(d: Dict[str, Any], stamp: float) -> Link:
     """The link of :func:`link_dict`'s data (received at ``stamp``); files written before the
     inlier ratio had its name say ``reliability``: both are read. Raises KeyError, TypeError
     or ValueError when ``d`` is not such data."""
     ratio = d['inlier_ratio'] if 'inlier_ratio' in d else d['reliability']
-    e = Edge(str(d['parent']), str(d['child']), se2(float(d['x']), float(d['y']), float(d['yaw'])),
+    e = Link(str(d['parent']), str(d['child']), se2(float(d['x']), float(d['y']), float(d['yaw'])),
              float(ratio), float(d['agreement']), int(d['inliers']), int(d.get('matches', 0)), stamp)
     if d.get('cov') is not None:   # files written before links had a covariance have none
         e.cov = np.array([float(v) for v in d['cov']]).reshape(3, 3)
@@ -55,7 +55,7 @@ def link_from_dict(d: Dict[str, Any], stamp: float) -> Edge:
 
 def placement_dict(pl: Placement) -> Dict[str, Any]:
     """A placement as plain data, the one form of it everywhere (the state file, merge_maps'
-    transforms file, /diagnostics): x, y, yaw (metres, radians: the pose of the robot's map
+    transforms report, /diagnostics): x, y, yaw (metres, radians: the pose of the robot's map
     frame in the merged frame), inlier_ratio, agreement, inliers (the weakest along its chain),
     via (the robot it is linked through, '' for the reference), chain (reference ... robot),
     weak (2-sigma position over ``max_position_sigma``) and its covariance (:func:`cov_fields`)."""

@@ -6,7 +6,8 @@ Conventions (used everywhere in the package):
 - *Cell coordinates* of a grid are continuous ``(col, row)`` with the centre of cell
   ``data[r, c]`` at ``(c, r)``: OpenCV's pixel-centre convention, in OccupancyGrid row order
   (row 0 at the origin, no flip; see :mod:`multi_map_merge.core.grid`).
-- ``cell_to_metric(grid)`` maps a grid's cell coordinates to metres in its ``frame_id``.
+- ``cell_to_metric(resolution, origin)`` (``W``) maps a grid's cell coordinates to metres in its
+  ``frame_id``.
 - An *image transform* ``A`` maps cell coordinates of one grid to cell coordinates of another
   (here: robot map -> reference map). Estimation produces it.
 - A *pose* ``T_ref_k`` is the SE(2) pose of frame k expressed in frame ref: it maps metres in

@@ -1,4 +1,4 @@
-"""Step 4 of the flowchart, beyond the paper: verification of a transform on the grids.
+"""Step (4) (docs/design.md), beyond the paper: verification of a transform on the grids.
 
 An inlier ratio alone can be high for a confident wrong match on repetitive structure, so a
 transform is also scored by how the two grids agree under it: walls landing on walls, not on

@@ -382,17 +382,17 @@ def load_truth(path: str) -> Dict[str, Any]:
 
 
 def load_transforms(path: str) -> Dict[str, np.ndarray]:
-    """merge_maps' ``--transforms`` file (``{reference: A, maps: {B: {merged: true, x, y, yaw,
-    ...}, C: {merged: false, reason: ...}}}``): name -> 3x3 pose of that map's frame in the
+    """merge_maps' transforms report (``--transforms``; ``{reference: A, maps: {B: {merged:
+    true, x, y, yaw, ...}, C: {merged: false, reason: ...}}}``): name -> 3x3 pose of that map's frame in the
     merged frame (metres, radians), the reference first (the identity); maps not merged are
     left out. Raises ValueError naming the file on any problem."""
     try:
         with open(path) as f:
             doc = yaml.safe_load(f)
     except (OSError, yaml.YAMLError) as e:
-        raise ValueError('%s: cannot read transforms file: %s' % (path, e)) from None
+        raise ValueError('%s: cannot read transforms report: %s' % (path, e)) from None
     if not isinstance(doc, dict) or 'reference' not in doc or not isinstance(doc.get('maps') or {}, dict):
-        raise ValueError('%s: not a merge_maps transforms file (needs reference and maps)' % path)
+        raise ValueError('%s: not a merge_maps transforms report (needs reference and maps)' % path)
     out = {str(doc['reference']): np.eye(3)}
     for k, v in (doc.get('maps') or {}).items():
         if not isinstance(v, dict):
@@ -434,9 +434,9 @@ def main(argv: Optional[List[str]] = None) -> int:
     ap.add_argument('--truth', help='make_robot_bags\' truth file: without --init the coarse pose is '
                                     '--robot\'s start pose')
     ap.add_argument('--robot', help='robot whose map frame the map is in (default: the --transforms '
-                                    'file\'s reference if it is a robot of the truth file, else the '
+                                    'report\'s reference if it is a robot of the truth file, else the '
                                     'truth file\'s reference)')
-    ap.add_argument('--transforms', help='merge_maps --transforms file: also print each robot\'s '
+    ap.add_argument('--transforms', help='merge_maps --transforms report: also print each robot\'s '
                                          'transform error against the truth file (needs --truth)')
     ap.add_argument('--json', help='write the figures here (JSON)')
     a = ap.parse_args(argv)

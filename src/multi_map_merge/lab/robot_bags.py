@@ -21,7 +21,7 @@ from typing import List, Optional
 import numpy as np
 import yaml
 
-from ..core.cli import parser
+from ..cli.args import parser
 from ..core.mapio import MapFileError, load_map
 from ..core.transforms import wrap_angle
 from .simulate import SimConfig, ld08_driver_scans, read_carmen, simulate_carmen, simulate_world

@@ -12,7 +12,7 @@ from geometry_msgs.msg import Point, Quaternion
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
-from ..core.links import Edge
+from ..core.links import Link
 from ..core.placement import Placement
 from ..core.transforms import xyyaw
 
@@ -59,7 +59,7 @@ def _marker(frame: str, stamp, ns: str, mid: int, kind: int) -> Marker:
     return m
 
 
-def markers_msg(placements: Dict[str, Placement], links: Iterable[Edge], frame: str, stamp,
+def markers_msg(placements: Dict[str, Placement], links: Iterable[Link], frame: str, stamp,
                 min_agreement: float) -> MarkerArray:
     """The whole marker set: first a DELETEALL (robots and links that are gone disappear), then
     per placed robot an arrow at its map frame's origin along its x axis (ns ``robots``) and its
@@ -92,7 +92,7 @@ def markers_msg(placements: Dict[str, Placement], links: Iterable[Edge], frame: 
         cov: Optional[np.ndarray] = pl.cov
         if cov is not None:
             arr.markers.append(_ellipse(frame, stamp, i, x, y, cov, pl.weak))
-    shown: List[Edge] = sorted((e for e in links if e.parent in where and e.child in where),
+    shown: List[Link] = sorted((e for e in links if e.parent in where and e.child in where),
                                key=lambda e: (e.parent, e.child))
     for j, e in enumerate(shown):
         (xa, ya), (xb, yb) = where[e.parent], where[e.child]
@@ -109,7 +109,7 @@ def markers_msg(placements: Dict[str, Placement], links: Iterable[Edge], frame: 
     return arr
 
 
-def markers_key(placements: Dict[str, Placement], links: Iterable[Edge]) -> tuple:
+def markers_key(placements: Dict[str, Placement], links: Iterable[Link]) -> tuple:
     """What the markers are drawn from: they are published again only when this changes."""
     return (tuple(sorted((r, pl.T.tobytes(), pl.via, None if pl.cov is None else np.asarray(pl.cov).tobytes(),
                           pl.weak) for r, pl in placements.items())),

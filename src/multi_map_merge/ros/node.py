@@ -732,7 +732,7 @@ def run_merge_node(argv: Optional[List[str]] = None) -> None:
 
         roslaunch multi_map_merge map_merge.launch [robots:="tb3_0 tb3_1"] [reference_robot:=tb3_0]
         rosrun multi_map_merge map_merge_node _estimation_rate:=0.5 __name:=map_merge"""
-    from ..core.cli import parser
+    from ..cli.args import parser
     args = rospy.myargv(sys.argv if argv is None else argv)[1:]
     # before the workers fork and rospy starts: --help starts nothing
     parser('map_merge_node', run_merge_node.__doc__).parse_args(args)

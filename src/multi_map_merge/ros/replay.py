@@ -244,7 +244,7 @@ def record_replay_main(argv: Optional[List[str]] = None) -> int:
     made: DIR/merged.{yaml,pgm} (the last /map) and DIR/record.yaml (each robot's trajectory in
     the merged frame through the merged TF, its map frame's pose, its /diagnostics). Stops when
     /clock has stood still for --idle seconds (the bag ended)."""
-    from ..core.cli import parser
+    from ..cli.args import parser
     ap = parser('record_replay', record_replay_main.__doc__)
     ap.add_argument('robots', nargs='+')
     ap.add_argument('-o', '--output', required=True)

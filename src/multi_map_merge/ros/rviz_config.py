@@ -26,7 +26,7 @@ from typing import Dict, List, Optional
 
 import yaml
 
-from ..core.cli import parser
+from ..cli.args import parser
 
 PRIOR_TOPIC = '/%s/map_merge/prior'
 GOAL_TOPIC = '/%s/move_base_simple/goal'

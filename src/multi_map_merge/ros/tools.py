@@ -1,22 +1,20 @@
-"""Small ROS tools and the helpers tests and the demo use: the map publisher (saved maps
-published as growing gmapping maps), waiting for a map / the master / a merge, tf lookups. (The
-relays, light enough for a robot, are in :mod:`multi_map_merge.ros.relays`.)"""
+"""Small ROS tools: the map publisher (saved maps published as growing gmapping maps), saving a
+map topic, waiting for a map / the master (the demo). (The relays, light enough for a robot,
+are in :mod:`multi_map_merge.ros.relays`.)"""
 from __future__ import annotations
 
 import sys
 import time
-from typing import Dict, List, Optional, Sequence
+from typing import List, Optional, Sequence
 
 import numpy as np
 import rospy
 import tf2_ros
-from diagnostic_msgs.msg import DiagnosticArray
 
 from ..core.grid import Grid
 from ..core.mapio import load_map, save_map
 from ..core.transforms import cell_to_metric, se2
-from .convert import NumpyGrid, grid_from_msg, grid_to_msg, quaternion_yaw, transform_msg
-from .diagnostics import diagnostics_by_robot
+from .convert import NumpyGrid, grid_from_msg, grid_to_msg, transform_msg
 
 
 def revealed(grid: Grid, radius: float) -> Optional[Grid]:
@@ -100,46 +98,8 @@ def wait_for_master(timeout: float) -> bool:
     return False
 
 
-def wait_for_merge(robots: Sequence[str], timeout: float, settle: float = 0.0) -> Dict[str, Dict[str, str]]:
-    """Per-robot key/values of the merger's /diagnostics once every robot in ``robots`` is
-    merged and ``settle`` more seconds have passed (or at ``timeout``)."""
-    latest: Dict[str, Dict[str, str]] = {}
-
-    sub = rospy.Subscriber('/diagnostics', DiagnosticArray, diagnostics_by_robot, callback_args=latest)
-    end = time.time() + timeout
-    merged_since = None
-    while time.time() < end and not rospy.is_shutdown():
-        done = all(latest.get(r, {}).get('merged') == 'true' for r in robots)
-        if done and merged_since is None:
-            merged_since = time.time()
-        if done and time.time() - merged_since >= settle:
-            break
-        time.sleep(0.2)
-    sub.unregister()
-    return dict(latest)
-
-
 def init_node(name: str) -> None:
     rospy.init_node(name, anonymous=True)
-
-
-def lookup_transforms(parent: str, children: List[str], timeout: float) -> Dict[str, np.ndarray]:
-    """tf2 lookups ``parent -> child`` (3x3 poses, metres); children not found are left out."""
-    buf = tf2_ros.Buffer()
-    tf2_ros.TransformListener(buf)
-    out = {}
-    end = time.time() + timeout
-    for c in children:
-        while time.time() < end and not rospy.is_shutdown():
-            try:
-                t = buf.lookup_transform(parent, c, rospy.Time(0), rospy.Duration(0.5))
-                tr = t.transform
-                out[c] = se2(tr.translation.x, tr.translation.y, quaternion_yaw(tr.rotation))
-                break
-            except (tf2_ros.LookupException, tf2_ros.ConnectivityException,
-                    tf2_ros.ExtrapolationException):
-                time.sleep(0.1)
-    return out
 
 
 # ---------------------------------------------------------------- the scripts
@@ -147,7 +107,7 @@ def publish_maps_main(argv: Optional[List[str]] = None) -> int:
     """``publish_maps tb3_0:A.yaml tb3_1:B.yaml ... [--steps 4] [--period 2]``: publish saved
     maps on /<robot>/map as gmapping robots would (latched, growing), for demos and tests
     without robots."""
-    from ..core.cli import parser
+    from ..cli.args import parser
     ap = parser('publish_maps', publish_maps_main.__doc__)
     ap.add_argument('maps', nargs='+', help='robot:map.yaml pairs')
     ap.add_argument('--steps', type=int, default=4, help='growth steps before the whole map')
@@ -168,7 +128,7 @@ def publish_maps_main(argv: Optional[List[str]] = None) -> int:
 def save_map_main(argv: Optional[List[str]] = None) -> int:
     """``save_map -f merged [--topic /map] [--timeout 30]``: save the next OccupancyGrid on a
     topic as map_server files (map_saver is not in Debian)."""
-    from ..core.cli import parser
+    from ..cli.args import parser
     ap = parser('save_map', save_map_main.__doc__)
     ap.add_argument('-f', '--file', default='map', help='output base name (writes .pgm and .yaml)')
     ap.add_argument('--topic', default='/map')

@@ -1,5 +1,5 @@
 """bench/memtree.py's page counting: the merged pagemap spans read the same frames as reading
-each mapping on its own (the way it was read before: 100 ms a sample for a node tree)."""
+each mapping on its own (which is far slower for a node tree)."""
 import os
 import signal
 import subprocess

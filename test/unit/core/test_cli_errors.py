@@ -4,7 +4,7 @@ import shutil
 import pytest
 from conftest import DATA
 
-from multi_map_merge.core import offline as cli
+from multi_map_merge.cli import merge_maps as cli
 
 
 @pytest.fixture

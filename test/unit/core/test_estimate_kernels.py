@@ -168,7 +168,7 @@ def _blas_threads_after(setup: str, call: str) -> str:
 
 def test_workers_run_blas_on_one_thread():
     """Where numpy's BLAS is OpenBLAS, a worker's initialiser leaves it one thread."""
-    assert _blas_threads_after('from multi_map_merge.core.workers import _worker_init', '_worker_init()') == '1'
+    assert _blas_threads_after('from multi_map_merge.runtime.process import worker_init', 'worker_init()') == '1'
 
 
 @pytest.mark.parametrize('seed', range(3))

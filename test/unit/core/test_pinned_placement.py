@@ -141,9 +141,9 @@ def test_a_weakly_pinned_robot_improves_when_another_link_pins_the_weak_directio
 
 
 def edges_triangle(err, cov_ra=CORRIDOR_X, cov_other=TIGHT):
-    """:func:`links_triangle` as the merger's verified links (Edge), with covariances."""
-    from multi_map_merge.core.links import Edge
-    return {(a, b): Edge(a, b, Z, 0.95, 0.98, 100, 300, 1.0, 1000, cov_ra if (a, b) == ('r', 'a') else cov_other)
+    """:func:`links_triangle` as the merger's verified links (Link), with covariances."""
+    from multi_map_merge.core.links import Link
+    return {(a, b): Link(a, b, Z, 0.95, 0.98, 100, 300, 1.0, 1000, cov_ra if (a, b) == ('r', 'a') else cov_other)
             for a, b, Z, _ in links_triangle(err)}
 
 
@@ -191,11 +191,11 @@ def test_a_robot_reached_only_through_a_link_without_covariance_is_weak(graph):
     """No made-up covariance: a robot whose only links have none (too few walls to search, a link
     from an older state file) has no covariance and is weakly pinned; a robot the other links
     pin is not."""
-    from multi_map_merge.core.links import Edge
-    edges = {('r', 'a'): Edge('r', 'a', se2(5.0, 0.0, 0.0), 0.99, 0.99, 200, 300, 1.0, 1000, None),
-             ('r', 'b'): Edge('r', 'b', se2(0.0, 5.0, 0.0), 0.9, 0.98, 100, 300, 1.0, 1000, TIGHT)}
+    from multi_map_merge.core.links import Link
+    edges = {('r', 'a'): Link('r', 'a', se2(5.0, 0.0, 0.0), 0.99, 0.99, 200, 300, 1.0, 1000, None),
+             ('r', 'b'): Link('r', 'b', se2(0.0, 5.0, 0.0), 0.9, 0.98, 100, 300, 1.0, 1000, TIGHT)}
     if graph:   # a cycle through a, whose links have no covariance
-        edges[('b', 'a')] = Edge('b', 'a', se2(5.0, -5.0, 0.0), 0.9, 0.98, 100, 300, 1.0, 1000, None)
+        edges[('b', 'a')] = Link('b', 'a', se2(5.0, -5.0, 0.0), 0.9, 0.98, 100, 300, 1.0, 1000, None)
     best, used = place(edges)
     assert used == graph
     assert best['a'].cov is None and best['a'].weak

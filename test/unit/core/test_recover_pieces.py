@@ -8,7 +8,7 @@ import pytest
 import yaml
 from conftest import DATA, REPO, pose_error, truth
 
-from multi_map_merge.core import offline as cli
+from multi_map_merge.cli import merge_maps as cli
 from multi_map_merge.core.mapio import load_map, save_map
 from multi_map_merge.core.merger import MapMerger
 from multi_map_merge.core.transforms import se2
@@ -44,7 +44,7 @@ MERGED_KEYS = {'merged', 'x', 'y', 'yaw', 'inlier_ratio', 'inliers', 'agreement'
 
 
 def check_report(report, ps, stems):
-    """The transforms file's exact shape (README: reference, maps: {stem: {merged, x, y, yaw,
+    """The transforms report's exact shape (README: reference, maps: {stem: {merged, x, y, yaw,
     inlier_ratio, agreement, inliers, via, chain, weak, sigma_position, cov}}, links) and every
     pose against the truth."""
     assert set(report) == {'reference', 'maps', 'links'} and report['reference'] == stems[0]

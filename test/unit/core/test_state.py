@@ -1,12 +1,12 @@
 """A placement as plain data (core.state.placement_dict), written the same way by the state
-file (MapMerger.export_state) and merge_maps' transforms file (offline.transforms_report)."""
+file (MapMerger.export_state) and merge_maps' transforms report (report.transforms_report)."""
 import math
 
-from multi_map_merge.core.offline import transforms_report
+from multi_map_merge.core.report import transforms_report
 from multi_map_merge.core.state import load_state, placement_dict, save_state
 
 
-def test_one_placement_reads_the_same_in_the_state_file_and_the_transforms_file(halves_merged, tmp_path):
+def test_one_placement_reads_the_same_in_the_state_file_and_the_transforms_report(halves_merged, tmp_path):
     m = halves_merged
     d = placement_dict(m.placements()['b'])
     assert set(d) == {'x', 'y', 'yaw', 'inlier_ratio', 'agreement', 'inliers', 'via', 'chain', 'weak',
@@ -28,11 +28,11 @@ def test_one_placement_reads_the_same_in_the_state_file_and_the_transforms_file(
 def test_a_link_survives_the_state_file_and_old_files_are_read():
     import numpy as np
 
-    from multi_map_merge.core.links import Edge
+    from multi_map_merge.core.links import Link
     from multi_map_merge.core.merger import MapMerger
     from multi_map_merge.core.state import link_dict, link_from_dict
     from multi_map_merge.core.transforms import se2
-    e = Edge('a', 'b', se2(1.5, -0.25, 2.0), 0.4, 0.97, 33, 80, 0.0)
+    e = Link('a', 'b', se2(1.5, -0.25, 2.0), 0.4, 0.97, 33, 80, 0.0)
     d = link_dict(e)
     back = link_from_dict(d, 5.0)
     assert np.allclose(back.T, e.T) and back.stamp == 5.0

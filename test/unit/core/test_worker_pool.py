@@ -1,5 +1,7 @@
-"""How the estimation workers are started: forked from a process that runs no other thread
-(sharing its memory), from a forkserver otherwise; the same estimates either way."""
+"""The worker pool of pair jobs: how its workers are started (forked from a process that runs no
+other thread, sharing its memory; from a forkserver otherwise; the same estimates either way),
+what they do with their memory and their caches, when a problem is estimated inline, and the
+pool after one of its workers died."""
 from __future__ import annotations
 
 import os
@@ -14,6 +16,7 @@ import numpy as np
 from multi_map_merge.core import workers
 from multi_map_merge.core.config import MergeConfig
 from multi_map_merge.core.pair import compute_features
+from multi_map_merge.runtime.memory import run_task
 
 def main():
     rng = np.random.default_rng(1)
@@ -22,12 +25,12 @@ def main():
     methods = []
     workers.start_pool(2)
     methods.append(workers._POOL._mp_context.get_start_method())
-    a = workers._POOL.submit(workers._task, compute_features, MergeConfig(), levels).result()
+    a = workers._POOL.submit(run_task, compute_features, MergeConfig(), levels).result()
     t = threading.Thread(target=time.sleep, args=(5,), daemon=True)
     t.start()
     workers.start_pool(3)      # a thread runs now: no fork
     methods.append(workers._POOL._mp_context.get_start_method())
-    b = workers._POOL.submit(workers._task, compute_features, MergeConfig(), levels).result()
+    b = workers._POOL.submit(run_task, compute_features, MergeConfig(), levels).result()
     workers.start_pool(1)      # inline: no pool
     same = all(np.array_equal(x.points, inline.points) for x in (a, b))
     print(methods, workers._POOL is None, same)
@@ -58,6 +61,7 @@ import numpy as np
 from multi_map_merge.core import workers
 from multi_map_merge.core.config import MergeConfig
 from multi_map_merge.core.pair import compute_features
+from multi_map_merge.runtime.memory import run_task
 
 def main():
     cv2.setNumThreads(2)
@@ -66,7 +70,7 @@ def main():
         cv2.warpAffine(img, np.eye(2, 3), (600, 600))
     workers.start_pool(2)
     levels = np.where(np.random.default_rng(2).random((120, 160)) < 0.1, 2, 1).astype(np.uint8)
-    fs = [f.result(timeout=60) for f in [workers._POOL.submit(workers._task, compute_features, MergeConfig(), levels)
+    fs = [f.result(timeout=60) for f in [workers._POOL.submit(run_task, compute_features, MergeConfig(), levels)
                                          for _ in range(4)]]
     print(workers._POOL._mp_context.get_start_method(), len(fs), cv2.getNumThreads())
 
@@ -83,7 +87,7 @@ def test_workers_forked_after_opencv_started_its_threads(tmp_path):
 
 TRIM_SCRIPT = r'''
 import ctypes
-from multi_map_merge.core import workers
+from multi_map_merge.runtime.memory import run_task
 
 libc = ctypes.CDLL(None)
 libc.malloc.restype = ctypes.c_void_p
@@ -104,7 +108,7 @@ def leave_free_heap():
 before = rss_mb()
 leave_free_heap()
 kept = rss_mb() - before          # without a trim
-workers._task(leave_free_heap)    # the same in a task: trimmed after it
+run_task(leave_free_heap)          # the same in a task: trimmed after it
 after_task = rss_mb() - before
 print('%.1f %.1f' % (kept, after_task))
 '''
@@ -119,7 +123,7 @@ def test_a_task_that_leaves_megabytes_free_hands_them_back(tmp_path):
     if not hasattr(ctypes.CDLL(None), 'malloc_trim'):
         pytest.skip('not glibc: no malloc_trim')
     kept, after_task = map(float, run_script(tmp_path, TRIM_SCRIPT).split())
-    from multi_map_merge.core.workers import TRIM_FREE_BYTES
+    from multi_map_merge.runtime.memory import TRIM_FREE_BYTES
     assert kept > 35 and kept > TRIM_FREE_BYTES / 1e6 + 10   # the premise: freed, not handed back
     assert after_task < kept - 30
 
@@ -127,21 +131,21 @@ def test_a_task_that_leaves_megabytes_free_hands_them_back(tmp_path):
 def test_derived_data_of_a_former_merger_is_dropped(house):
     """A process keeps the derived data (wall fields, masks) of one merger: a new merger's
     maps replace an old merger's, whose data would otherwise stay until the cache's bound."""
-    from multi_map_merge.core import pair
+    from multi_map_merge.core import cache
     from multi_map_merge.core.config import MergeConfig
     from multi_map_merge.core.merger import MapMerger
     first = MapMerger(MergeConfig(workers=1))
     for k in range(3):
         first.update_map('r%d' % k, house)
     first.estimate()
-    n_first = len(pair._DERIVED)
-    assert n_first > 0 and pair._DERIVED_OWNER == first._workers.uid
+    n_first = len(cache._DERIVED)
+    assert n_first > 0 and cache._DERIVED_OWNER == first._workers.uid
     second = MapMerger(MergeConfig(workers=1))
     second.update_map('r0', house)
     second.update_map('r1', house)
     second.estimate()
-    assert 0 < len(pair._DERIVED) < n_first
-    assert pair._DERIVED_OWNER == second._workers.uid
+    assert 0 < len(cache._DERIVED) < n_first
+    assert cache._DERIVED_OWNER == second._workers.uid
 
 
 def test_describing_a_new_version_drops_what_was_derived_from_the_former(house):
@@ -150,33 +154,33 @@ def test_describing_a_new_version_drops_what_was_derived_from_the_former(house):
     maps' are kept."""
     import numpy as np
 
-    from multi_map_merge.core import pair
+    from multi_map_merge.core import cache, pair
     from multi_map_merge.core.config import MergeConfig
     from multi_map_merge.core.merger import MapMerger
     m = MapMerger(MergeConfig(workers=1))
     for k in range(3):
         m.update_map('r%d' % k, house)
     m.estimate()
-    names = {key[1] for key in pair._DERIVED}
+    names = {key[1] for key in cache._DERIVED}
     assert {'r0', 'r1'} <= names
-    version = {key[1]: v[0] for key, v in pair._DERIVED.items()}
+    version = {key[1]: v[0] for key, v in cache._DERIVED.items()}
     pair.describe_version(MergeConfig(), np.zeros((50, 50), np.uint8), m._workers.uid, 'r0', version['r0'] + 1)
-    assert not any(key[1] == 'r0' for key in pair._DERIVED)
-    assert {key[1] for key in pair._DERIVED} == names - {'r0'}
+    assert not any(key[1] == 'r0' for key in cache._DERIVED)
+    assert {key[1] for key in cache._DERIVED} == names - {'r0'}
 
 
 def _worked_here(config, maps):
     """Whether a cold estimation of ``maps`` (name -> Grid) under ``config`` ran in this process:
     a process that aligns a merger's pairs keeps what it derived for that merger
-    (``pair._DERIVED_OWNER``); the cells of the maps' known parts in all."""
-    from multi_map_merge.core import pair
+    (``cache._DERIVED_OWNER``); the cells of the maps' known parts in all."""
+    from multi_map_merge.core import cache
     from multi_map_merge.core.merger import MapMerger
     m = MapMerger(config)
     for name, g in maps.items():
         m.update_map(name, g)
     m.estimate()
     cells = sum(m._workers.crop(r)[0].size for r in m._maps.values())
-    return pair._DERIVED_OWNER == m._workers.uid, cells
+    return cache._DERIVED_OWNER == m._workers.uid, cells
 
 
 def test_small_problems_are_estimated_inline_and_large_ones_in_the_pool(house, intel):
@@ -192,3 +196,49 @@ def test_small_problems_are_estimated_inline_and_large_ones_in_the_pool(house, i
     assert cells >= workers.POOL_FROM_CELLS and here == ((os.cpu_count() or 1) < 2)   # (one core: no pool)
     here, _ = _worked_here(MergeConfig(workers=2), small)
     assert not here
+
+
+def test_a_killed_worker_fails_one_cycle_then_a_new_pool_estimates(intel):
+    """After one of the pool's processes died (killed, e.g. by the kernel's OOM killer) the
+    estimation cycle that needs it raises BrokenProcessPool, and the next cycle starts a new
+    pool and estimates."""
+    import signal
+    import time
+    from concurrent.futures.process import BrokenProcessPool
+
+    import numpy as np
+    import pytest
+    from conftest import pose_error, truth
+
+    from multi_map_merge.core import workers
+    from multi_map_merge.core.config import MergeConfig
+    from multi_map_merge.core.grid import Grid
+    from multi_map_merge.core.merger import MapMerger
+    from multi_map_merge.lab.pieces import cut_piece, split_rects
+    rects = split_rects(intel, 2, 0.35)
+    pieces = [cut_piece(intel, r, p) for r, p in zip(rects, [(0.0, 0.0, 0.0), (-2.0, 3.0, 2.6)])]
+    m = MapMerger(MergeConfig(workers=2, reference_robot='a'))
+    m.update_map('a', pieces[0][0])
+    m.update_map('b', pieces[1][0])
+    m.estimate()
+    assert 'b' in m.placements()
+    pool = workers._POOL
+    pids = list(pool._processes)
+    assert pids, 'no worker process'
+    os.kill(pids[0], signal.SIGKILL)
+    end = time.time() + 10
+    while time.time() < end and not pool._broken:   # the pool's own thread notices the death
+        time.sleep(0.05)
+    # b's map changes: the next cycle needs the pool
+    g = pieces[1][0]
+    data = g.data.copy()
+    rows, cols = np.nonzero(data == -1)
+    data[rows[len(rows) // 2], cols[len(cols) // 2]] = 100
+    m.update_map('b', Grid(data, g.resolution, g.origin))
+    with pytest.raises(BrokenProcessPool):
+        m.estimate()
+    assert workers._POOL is None           # the broken pool was let go
+    m.estimate()                           # a new pool
+    assert workers._POOL is not None and workers._POOL is not pool
+    d, a = pose_error(m.placements()['b'].T, truth(pieces[0][1], pieces[1][1]))
+    assert d < 0.1 and a < 1.0

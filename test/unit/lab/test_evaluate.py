@@ -1,5 +1,5 @@
 """evaluate.py: the paper's Fitness / inlier RMSE (Open3D ICP) against ground truth, coverage,
-wrongly occupied area, transform errors, the truth and transforms files, and evaluate_map."""
+wrongly occupied area, transform errors, the truth file and the transforms report, and evaluate_map."""
 import json
 import math
 import os

@@ -106,8 +106,8 @@ def test_fills_diagnostic_updaters_status_and_reads_back_by_robot():
 
 
 def test_a_placement_on_diagnostics_reads_as_placement_dict(halves_merged):
-    """A placement there reads as core.state.placement_dict says, as in the state and
-    transforms files."""
+    """A placement there reads as core.state.placement_dict says, as in the state file and
+    the transforms report."""
     from multi_map_merge.core.state import placement_dict
     m = halves_merged
     pl = m.placements()['b']
@@ -129,11 +129,11 @@ def pinned_team():
     """Placements of a (reference), b and c pinned by the core (placement.pin) from links a-b,
     a-c with covariances: b's link slides 8 cm (1 sigma) along x, c's is pinned to 1 cm."""
     from multi_map_merge.core.config import MergeConfig
-    from multi_map_merge.core.links import Edge
+    from multi_map_merge.core.links import Link
     from multi_map_merge.core.placement import pin
     cfg = MergeConfig(max_position_sigma=0.1)
-    e_ab = Edge('a', 'b', se2(2.0, 1.0, 0.3), 0.5, 0.98, 40, 80, NOW, cov=np.diag([0.08 ** 2, 0.01 ** 2, 1e-6]))
-    e_ac = Edge('a', 'c', se2(-1.0, 3.0, -1.0), 0.5, 0.98, 40, 80, NOW, cov=np.diag([0.01 ** 2, 0.005 ** 2, 1e-6]))
+    e_ab = Link('a', 'b', se2(2.0, 1.0, 0.3), 0.5, 0.98, 40, 80, NOW, cov=np.diag([0.08 ** 2, 0.01 ** 2, 1e-6]))
+    e_ac = Link('a', 'c', se2(-1.0, 3.0, -1.0), 0.5, 0.98, 40, 80, NOW, cov=np.diag([0.01 ** 2, 0.005 ** 2, 1e-6]))
     pls = {'a': Placement(np.eye(3), 1.0, 1.0, 0, '', ('a',), NOW - 5.0),
            'b': Placement(e_ab.T, 0.5, 0.98, 40, 'a', ('a', 'b'), NOW - 5.0),
            'c': Placement(e_ac.T, 0.5, 0.98, 40, 'a', ('a', 'c'), NOW - 5.0)}

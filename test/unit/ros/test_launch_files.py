@@ -520,10 +520,11 @@ def _move_base_node(xml_text, robot_arg=None):
 
 
 def test_readme_move_base_snippet_is_what_the_rostest_runs():
-    """The README's move_base snippet (section "Navigating on the merged map") and
-    test/ros/move_base_merged.launch, which test/ros/move_base_merged.test runs live where
-    move_base is installed, set the same parameters, load the same ROBOTIS files."""
-    with open(os.path.join(REPO, 'README.md')) as f:
+    """The docs' move_base snippet (docs/real_robots.md, section "Navigating on the merged map",
+    moved there from the README) and test/ros/move_base_merged.launch, which
+    test/ros/move_base_merged.test runs live where move_base is installed, set the same
+    parameters, load the same ROBOTIS files."""
+    with open(os.path.join(REPO, 'docs', 'real_robots.md')) as f:
         readme = f.read()
     section = readme[readme.index('### Navigating on the merged map'):]
     snippet = section[section.index('```') + 3:]

@@ -9,7 +9,7 @@ pytest.importorskip('visualization_msgs')   # the ROS shell: not on a stack with
 
 from visualization_msgs.msg import Marker  # noqa: E402
 
-from multi_map_merge.core.links import Edge  # noqa: E402
+from multi_map_merge.core.links import Link  # noqa: E402
 from multi_map_merge.core.placement import Placement  # noqa: E402
 from multi_map_merge.core.transforms import se2  # noqa: E402
 from multi_map_merge.ros.markers import link_colour, markers_key, markers_msg  # noqa: E402
@@ -22,9 +22,9 @@ def pl(x, y, yaw, via, path):
 PLACED = {'tb3_0': pl(0.0, 0.0, 0.0, '', ('tb3_0',)),
           'tb3_1': pl(2.0, -1.0, math.pi / 2, 'tb3_0', ('tb3_0', 'tb3_1')),
           'tb3_2': pl(-3.0, 4.0, -2.0, 'tb3_1', ('tb3_0', 'tb3_1', 'tb3_2'))}
-LINKS = [Edge('tb3_0', 'tb3_1', np.eye(3), 0.48, 0.99, 40, 80, 0.0),
-         Edge('tb3_1', 'tb3_2', np.eye(3), 0.27, 0.85, 15, 55, 0.0),
-         Edge('tb3_2', 'tb3_3', np.eye(3), 0.30, 0.90, 20, 60, 0.0)]   # tb3_3 is not placed
+LINKS = [Link('tb3_0', 'tb3_1', np.eye(3), 0.48, 0.99, 40, 80, 0.0),
+         Link('tb3_1', 'tb3_2', np.eye(3), 0.27, 0.85, 15, 55, 0.0),
+         Link('tb3_2', 'tb3_3', np.eye(3), 0.30, 0.90, 20, 60, 0.0)]   # tb3_3 is not placed
 
 
 def by_ns(arr):

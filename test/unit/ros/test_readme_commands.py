@@ -2,6 +2,7 @@
 `roslaunch multi_map_merge ...` in the workspace `make` built (no master needed).
 
 On a machine missing a package (rosbash has `rosrun`) these fail, as they would for the user."""
+import glob
 import json
 import os
 import re
@@ -13,13 +14,18 @@ import yaml
 from conftest import DATA, REPO
 
 README = os.path.join(REPO, 'README.md')
+# the README's pages in docs/ (real robots, bag replay, offline tools, ...): their commands too
+DOCS = sorted(glob.glob(os.path.join(REPO, 'docs', '*.md')))
 MAZE = os.path.join(DATA, 'tb3_dans_maze')
 
 
-def _readme_commands(tool):
-    """Every distinct `<tool> multi_map_merge NAME` the README shows."""
-    with open(README) as f:
-        return sorted(set(re.findall(r'\b%s multi_map_merge ([A-Za-z0-9_.]+)' % tool, f.read())))
+def _readme_commands(tool, pages=(README,) + tuple(DOCS)):
+    """Every distinct `<tool> multi_map_merge NAME` the README (and its docs pages) show."""
+    text = ''
+    for page in pages:
+        with open(page) as f:
+            text += f.read()
+    return sorted(set(re.findall(r'\b%s multi_map_merge ([A-Za-z0-9_.]+)' % tool, text)))
 
 
 def _run(cmd, cwd=None, timeout=120):
@@ -36,7 +42,7 @@ def _workspace():
 
 
 def test_readme_shows_the_offline_tools():
-    assert {'merge_maps', 'evaluate_map'} <= set(_readme_commands('rosrun'))
+    assert {'merge_maps', 'evaluate_map'} <= set(_readme_commands('rosrun', pages=(README,)))
 
 
 @pytest.mark.parametrize('name', _readme_commands('rosrun'))

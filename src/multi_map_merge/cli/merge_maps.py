@@ -3,9 +3,9 @@
     merge_maps A.yaml B.yaml ... -o merged.yaml [--transforms T.yaml] [--reference A]
               [--config map_merge.yaml]
 
-``--transforms`` writes the transforms file: every map frame's pose in the merged frame
-(:func:`transforms_report`; ``evaluate_map --transforms`` reads it). It is not the node's
-state file (``~state_file``, :mod:`state`), which holds the verified links between pairs.
+``--transforms`` writes the transforms report: every map frame's pose in the merged frame
+(:func:`report.transforms_report`; ``evaluate_map --transforms`` reads it). It is not the
+node's state file (``~state_file``, :mod:`state`), which holds the verified links between pairs.
 
 Exit status: 0 merged (even if some maps could not be placed: they are listed with
 ``merged: false``), 2 bad arguments or a bad input file (the message names it).
@@ -16,53 +16,15 @@ import dataclasses
 import math
 import os
 import sys
-from typing import Dict, List, Optional
+from typing import List, Optional
 
 import yaml
 
-from .cli import parser
-from .config import MergeConfig
-from .mapio import MapFileError, load_map, save_map
-from .merger import MapMerger
-from .state import placement_dict
-
-# digits a placement's numbers are written with in the transforms file
-DIGITS = {'x': 6, 'y': 6, 'yaw': 6, 'inlier_ratio': 4, 'agreement': 4}
-
-
-def transforms_report(merger: MapMerger, reference: str, names: List[str]) -> Dict:
-    """The transforms file (``--transforms``): every map frame's placement in the merged
-    (reference) frame (:func:`state.placement_dict`, rounded), or why it is not merged; and every
-    verified link between two maps with how well the grids pin it (``sigma_position``, ``cov``)."""
-    placements = merger.placements()
-    status = merger.status()
-    maps: Dict[str, Dict] = {}
-    for n in names:
-        if n == reference:
-            continue
-        pl = placements.get(n)
-        if pl is None:
-            st = status.get(n)
-            why = st.last_attempt.reason if st and st.last_attempt else 'no estimate'
-            maps[n] = {'merged': False, 'reason': why}
-            continue
-        d = placement_dict(pl)
-        maps[n] = dict(merged=True, **{k: _rounded(k, v) for k, v in d.items()})
-    links = []
-    for e in sorted(merger.export_state()['edges'], key=lambda e: (e['parent'], e['child'])):
-        links.append({k: _rounded(k, e[k]) for k in ('parent', 'child', 'x', 'y', 'yaw', 'sigma_position', 'cov')
-                      if k in e})
-    return {'reference': reference, 'maps': maps, 'links': links}
-
-
-def _rounded(key: str, v):
-    """A number of the transforms file as written: DIGITS decimals, a covariance to 6
-    significant digits."""
-    if key in DIGITS:
-        return round(v, DIGITS[key])
-    if key == 'cov':
-        return [float('%.6g' % x) for x in v]
-    return v
+from ..core.config import MergeConfig
+from ..core.mapio import MapFileError, load_map, save_map
+from ..core.merger import MapMerger
+from ..core.report import transforms_report
+from .args import parser
 
 
 def main(argv: Optional[List[str]] = None) -> int:
@@ -70,7 +32,7 @@ def main(argv: Optional[List[str]] = None) -> int:
     ap.add_argument('maps', nargs='+', help='map_server .yaml files, one per robot')
     ap.add_argument('-o', '--output', required=True, help='merged map .yaml to write (+ .pgm)')
     ap.add_argument('--transforms', metavar='T.yaml',
-                    help='write the transforms file here: each map frame\'s pose in the merged frame '
+                    help='write the transforms report here: each map frame\'s pose in the merged frame '
                          '(YAML; evaluate_map --transforms reads it)')
     ap.add_argument('--reference', help='file stem of the reference map (default: the first map)')
     ap.add_argument('--config', help='YAML of merger parameters (config/map_merge.yaml keys)')
