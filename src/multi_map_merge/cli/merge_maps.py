@@ -12,6 +12,7 @@ Exit status: 0 merged (even if some maps could not be placed: they are listed wi
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import sys
@@ -63,8 +64,13 @@ def main(argv: Optional[List[str]] = None) -> int:
         print('merge_maps: --reference %s is not one of the maps (%s)' % (reference, ', '.join(names)),
               file=sys.stderr)
         return 2
-    cfg_dict['reference_robot'] = reference
-    merger = MapMerger(MergeConfig.from_dict(cfg_dict))
+    try:   # the reference is a file stem, not a ROS name: set after the parameters are checked
+        config = MergeConfig.from_dict(cfg_dict, warn=lambda w: print('merge_maps: %s: %s' % (a.config, w),
+                                                                       file=sys.stderr))
+    except ValueError as e:
+        print('merge_maps: %s: %s' % (a.config, str(e).replace('\n', '\n  ')), file=sys.stderr)
+        return 2
+    merger = MapMerger(dataclasses.replace(config, reference_robot=reference))
     for n, g in zip(names, grids):
         merger.update_map(n, g)
     merger.estimate()

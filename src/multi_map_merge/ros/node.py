@@ -44,9 +44,10 @@ def load_params():
     """Every parameter of the node, read once from the private namespace and validated
     (:func:`resolve_params`): an invalid value is logged as an error naming the parameter and
     what it accepts, and its default is used; an unknown name gets a warning naming the closest
-    known one; m-explore's names are read as aliases. The defaults are MergeConfig's, which
-    equal config/map_merge.yaml. Returns the :class:`Resolved` (its ``config`` is the
-    node's)."""
+    known one; m-explore's names are read as aliases. Every parameter, its default and what it
+    accepts are declared in the tables of :mod:`multi_map_merge.core.parameters` (MergeConfig
+    and config/map_merge.yaml are made from them). Returns the :class:`Resolved` (its
+    ``config`` is the node's)."""
     try:
         given = rospy.get_param('~', {})
     except KeyError:

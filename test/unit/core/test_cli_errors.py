@@ -84,3 +84,23 @@ def test_errors_through_the_script(tmp_path):
                         str(tmp_path / 'gone.yaml'), '-o', str(tmp_path / 'o.yaml')],
                        capture_output=True, text=True, env=env, timeout=60)
     assert r.returncode == 2 and 'gone.yaml' in r.stderr, (r.returncode, r.stderr)
+
+
+@pytest.mark.parametrize('config,words', [
+    ('min_agreement: 1.5\n', ['min_agreement = 1.5 is invalid', '[0, 1]']),
+    ('merge_rate: 2.0\nmin_agreemnt: 0.5\n', ['unknown parameter min_agreemnt: did you mean min_agreement?']),
+    ('- a list\n', ['mapping']),
+])
+def test_a_bad_config_is_refused_naming_the_parameter(tmp_path, capsys, good, config, words):
+    cfg = write(tmp_path, 'cfg.yaml', config)
+    code, err = run(capsys, [good, '--config', cfg, '-o', str(tmp_path / 'o.yaml')])
+    assert code == 2 and 'cfg.yaml' in err, err
+    for w in words:
+        assert w in err, err
+    assert not os.path.exists(tmp_path / 'o.yaml')
+
+
+def test_an_alias_in_the_config_is_read_with_a_warning(tmp_path, capsys, good):
+    cfg = write(tmp_path, 'cfg.yaml', 'init_pose_params: true\n')
+    code, err = run(capsys, [good, '--config', cfg, '-o', str(tmp_path / 'o.yaml')])
+    assert code == 0 and 'deprecated' in err and '~' not in err.split('deprecated')[0], err

@@ -1,33 +1,144 @@
+"""Every parameter is declared once, in core/parameters.py (the merger's table and the node's):
+MergeConfig's fields, config/map_merge.yaml, the README's parameter table and the names the node
+reads are derived from it or checked against it here. A parameter declared anywhere else fails."""
+import ast
 import os
+import re
 from dataclasses import fields
 
+import pytest
 import yaml
 from conftest import REPO
 
+from multi_map_merge.core import parameters as P
 from multi_map_merge.core.config import MergeConfig
 
+ALL = {p.name: p for p in P.parameters()}
 
-def test_yaml_defaults_equal_code_defaults():
-    """config/map_merge.yaml (what the README documents and launch loads) and MergeConfig
-    (what the core uses) name the same parameters with the same defaults."""
-    with open(os.path.join(REPO, 'config', 'map_merge.yaml')) as f:
-        y = yaml.safe_load(f)
+
+def read(*path):
+    with open(os.path.join(REPO, *path)) as f:
+        return f.read()
+
+
+def test_each_parameter_is_in_one_table_once():
+    names = [p.name for p in P.parameters()]
+    assert len(names) == len(set(names))
+    aliases = [a for p in P.parameters() for a in list(p.former) + [o for o, _ in p.mexplore + p.deprecated]]
+    assert len(aliases) == len(set(aliases)) and not set(aliases) & set(names)
+    assert set(P.MERGER.names()).isdisjoint(P.NODE.names())
+    assert not any(p.library for p in P.MERGER.rows)   # library parameters are the node's
+
+
+def test_mergeconfig_fields_are_the_tables_parameters_with_their_defaults():
     d = MergeConfig()
-    assert set(y) == {f.name for f in fields(MergeConfig)}
-    for f in fields(MergeConfig):
-        assert y[f.name] == getattr(d, f.name), f.name
+    assert [f.name for f in fields(MergeConfig)] == [p.name for p in P.config_parameters()]
+    for p in P.config_parameters():
+        assert getattr(d, p.name) == p.default, p.name
+        assert p.convert(p.default) == p.default, p.name   # each default passes its own rule
+    assert MergeConfig.RENAMED == {'min_reliability': 'min_inlier_ratio', 'transforms_file': 'state_file'}
+    assert MergeConfig().initial_poses is not MergeConfig().initial_poses   # mutable defaults not shared
 
 
-def test_readme_documents_every_parameter():
-    with open(os.path.join(REPO, 'README.md')) as f:
-        text = f.read()
-    missing = [f.name for f in fields(MergeConfig) if '`~%s`' % f.name not in text]
-    assert not missing, 'README Parameters table lacks: %s' % missing
+def test_every_parameter_has_a_unit_or_none_a_meaning_and_a_type():
+    for p in P.parameters():
+        assert p.meaning and '\n' not in p.meaning and '|' not in p.doc, p.name
+        assert p.kind in ('bool', 'int', 'double', 'string', 'string list', 'double list', 'dict'), p.name
+        assert p.section, p.name
+    units = {p.name: p.unit for p in P.parameters()}
+    assert units['merge_rate'] == 'Hz' and units['stale_map_timeout'] == 's' and units['map_drift'] == 'm/m'
 
+
+def test_committed_yaml_is_generated_from_the_tables():
+    """tools/gen_params.py writes it: run it after editing core/parameters.py."""
+    assert read('config', 'map_merge.yaml') == P.yaml_text()
+
+
+def test_yaml_names_and_defaults_are_the_tables():
+    y = yaml.safe_load(read('config', 'map_merge.yaml'))
+    assert set(y) == {p.name for p in P.config_parameters()}
+    for name, value in y.items():
+        assert value == ALL[name].default, name
+
+
+def test_readme_parameter_table_is_generated_from_the_tables():
+    """The block between the markers is tools/gen_params.py's (the README may move it whole)."""
+    text = read('README.md')
+    assert text.count(P.README_BEGIN) == 1 and text.count(P.README_END) == 1
+    assert P.markdown_table() in text
+
+
+def test_no_readme_parameter_row_outside_the_tables():
+    """Every row `| ~name | ...` of a README table with a default column is a parameter of the
+    tables, with the table's default; none is documented outside the generated block."""
+    text = read('README.md')
+    block = text[text.index(P.README_BEGIN):text.index(P.README_END)]
+    outside = text.replace(block, '')
+    header = None
+    for line in text.splitlines():
+        if not line.startswith('|'):
+            header = None
+            continue
+        if header is None:
+            header = [c.strip() for c in line.strip('|').split('|')]
+            continue
+        m = re.match(r'^\| `~(\w+)` \|', line)
+        if not m or 'default' not in header:
+            continue
+        name = m.group(1)
+        assert name in ALL, 'README documents ~%s, which no table declares' % name
+        assert line not in outside, 'README documents ~%s outside the generated block' % name
+        cells = [c.strip() for c in line.strip('|').split(' | ')]
+        assert cells[header.index('default')] == P._md_default(ALL[name]), name
+
+
+def _node_modules():
+    """ros/node.py and the modules of ros/ it imports (the map_merge node's code)."""
+    src = read('src', 'multi_map_merge', 'ros', 'node.py')
+    mods = {'node'} | set(re.findall(r'^from \.(\w+) import', src, re.M))
+    return sorted(os.path.join(REPO, 'src', 'multi_map_merge', 'ros', m + '.py') for m in mods)
+
+
+def test_the_node_reads_no_private_parameter_outside_the_tables():
+    """A rospy.get_param('~x' ...) (or _cached, has_param, search_param) in the node's code names
+    a parameter of the tables, and a default given there is the table's."""
+    seen = 0
+    for path in _node_modules():
+        with open(path) as f:
+            tree = ast.parse(f.read(), path)
+        for call in ast.walk(tree):
+            if not (isinstance(call, ast.Call) and isinstance(call.func, ast.Attribute)
+                    and call.func.attr in ('get_param', 'get_param_cached', 'has_param', 'search_param')
+                    and call.args and isinstance(call.args[0], ast.Constant)
+                    and isinstance(call.args[0].value, str) and call.args[0].value.startswith('~')):
+                continue
+            name = call.args[0].value[1:]
+            if name == '':
+                continue   # the whole private namespace: resolved by the tables
+            seen += 1
+            assert name in ALL, '%s:%d reads ~%s, which no table declares' % (path, call.lineno, name)
+            if len(call.args) > 1:
+                default = ast.literal_eval(call.args[1])
+                assert default == ALL[name].default, '%s:%d: default of ~%s' % (path, call.lineno, name)
+    assert seen >= 1   # ~diagnostic_period, read again while running
+
+
+def test_the_tables_module_is_ros_free():
+    tree = ast.parse(read('src', 'multi_map_merge', 'core', 'parameters.py'))
+    imported = {a.name.split('.')[0] for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
+    imported |= {n.module.split('.')[0] for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and n.module}
+    assert not imported & {'rospy', 'rosgraph', 'roslib', 'yaml', 'numpy'}
+
+
+# -- MergeConfig.from_dict: the front ends' (merge_maps --config, evaluate_map) use of the resolver
 
 def test_from_dict_converts_types():
-    c = MergeConfig.from_dict({'min_inliers': '12', 'refine': 0, 'robots': 'tb3_0 tb3_1', 'x': 1})
+    c = MergeConfig.from_dict({'min_inliers': '12', 'refine': 0, 'robots': 'tb3_0 tb3_1'})
     assert c.min_inliers == 12 and c.refine is False and c.robots == ['tb3_0', 'tb3_1']
+
+
+def test_from_dict_of_the_shipped_yaml_is_the_defaults():
+    assert MergeConfig.from_dict(yaml.safe_load(read('config', 'map_merge.yaml'))) == MergeConfig()
 
 
 def test_a_renamed_parameter_is_still_read_by_its_old_name():
@@ -36,3 +147,71 @@ def test_a_renamed_parameter_is_still_read_by_its_old_name():
     assert MergeConfig.from_dict({'transforms_file': 'links.yaml'}).state_file == 'links.yaml'
     # ours at its default (as config/map_merge.yaml sets every parameter): the former name is meant
     assert MergeConfig.from_dict({'min_reliability': 0.3, 'min_inlier_ratio': 0.0}).min_inlier_ratio == 0.3
+
+
+def test_from_dict_reads_mexplore_names_and_warns_as_the_node_does():
+    warned = []
+    c = MergeConfig.from_dict({'merging_rate': 4.0, 'init_pose_params': True, 'merge_rate': 3.0},
+                              warn=warned.append)
+    assert c.merge_rate == 3.0 and c.known_init_poses is True
+    assert len(warned) == 2 and any('deprecated' in w for w in warned) and any('wins' in w for w in warned)
+
+
+@pytest.mark.parametrize('given,words', [
+    ({'min_agreement': 1.5}, ['min_agreement = 1.5 is invalid', '[0, 1]']),
+    ({'merge_rate': 0}, ['merge_rate = 0 is invalid', '> 0']),
+    ({'max_cells': 'many'}, ['max_cells', 'integer >= 1']),
+    ({'initial_pose_tolerance': [1.0]}, ['initial_pose_tolerance', '[metres, radians]']),
+    ({'free_thresh': 70, 'occupied_thresh': 60}, ['free_thresh (70) must be below occupied_thresh (60)']),
+    ({'min_agreemnt': 0.5}, ['unknown parameter min_agreemnt: did you mean min_agreement?']),
+    ({'zzzz': 1}, ['unknown parameter zzzz']),
+    ({'merging_rate': -1}, ['merge_rate (given as merging_rate) = -1 is invalid']),
+])
+def test_from_dict_refuses_bad_values_and_unknown_names(given, words):
+    with pytest.raises(P.ParameterError) as e:
+        MergeConfig.from_dict(given)
+    for w in words:
+        assert w in str(e.value), str(e.value)
+    assert 'using the default' not in str(e.value)
+
+
+def test_from_dict_names_every_error_at_once():
+    with pytest.raises(ValueError) as e:
+        MergeConfig.from_dict({'min_agreement': 2, 'workers': -1, 'x_y': 1})
+    assert len(str(e.value).splitlines()) == 3
+
+
+def test_from_dict_needs_a_mapping_of_names():
+    with pytest.raises(P.ParameterError):
+        MergeConfig.from_dict(['merge_rate', 2])
+    with pytest.raises(P.ParameterError) as e:
+        MergeConfig.from_dict({1: 2, 'merge_rate': 2})   # (YAML reads `1: 2` so)
+    assert 'names must be strings' in str(e.value)
+
+
+def test_offline_reference_need_not_match_the_nodes_discovery_pattern():
+    """evaluate_map's merger names its reference 'truth'; merge_maps' are file stems."""
+    assert MergeConfig.from_dict({'workers': 1, 'reference_robot': 'truth'}).reference_robot == 'truth'
+
+
+def test_generator_script_check_passes():
+    import subprocess
+    import sys
+    r = subprocess.run([sys.executable, os.path.join(REPO, 'tools', 'gen_params.py'), '--check'],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stdout + r.stderr
+
+
+def test_readme_mexplore_table_names_every_alias_and_only_known_parameters():
+    """The README's *Switching from m-explore* table: each m-explore name the tables read is a
+    row naming the parameter it is read as; every row's parameter is one of the tables."""
+    text = read('README.md')
+    rows = re.findall(r'^\| `(\w+)` \| (?:`~(\w+)`[^|]*|none) \|', text, re.M)
+    here = {m: ours for m, ours in rows}
+    for p in P.parameters():
+        for alias, _ in p.mexplore:
+            assert here.get(alias) == p.name, (alias, p.name)
+    for alias in P.MEXPLORE_IGNORED:
+        assert here.get(alias) == '', alias
+    for m, ours in rows:
+        assert not ours or ours in ALL, 'README maps %s to ~%s, which no table declares' % (m, ours)

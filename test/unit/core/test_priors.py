@@ -198,9 +198,9 @@ def test_the_reference_message_says_whether_it_may_still_change():
     assert 'set ~reference_robot to fix it' in line
 
 
-def test_the_reference_line_is_the_same_as_the_nodes_was():
-    """ReferenceChoice.message: the line ros/params.reference_message wrote, now the merger's
-    (the same cases as test_params' test of it)."""
+def test_the_reference_line_says_which_robot_why_and_how_to_choose_it():
+    """ReferenceChoice.message: the line the node logs of the reference robot: which, why, and
+    how to choose it."""
     from multi_map_merge.core.merger import REF_FIRST_BY_NAME, REF_PARAMETER, ReferenceChoice
     assert ReferenceChoice('', False, REF_FIRST_BY_NAME).message() == ''
     assert ReferenceChoice('tb3_2', True, REF_PARAMETER).message() == \

@@ -353,22 +353,6 @@ def test_a_reference_robot_discovery_would_never_find_is_an_error():
     assert resolve_params({'robot_namespace_pattern': 'robot*', 'reference_robot': 'robot1'}).errors == []
 
 
-def test_the_reference_line_says_which_robot_why_and_how_to_choose_it():
-    from multi_map_merge.core.merger import REF_FIRST_BY_NAME, REF_PARAMETER, REF_PROPOSED, ReferenceChoice
-    from multi_map_merge.ros.params import reference_message
-    assert reference_message(ReferenceChoice('', False, REF_FIRST_BY_NAME)) == ''
-    assert reference_message(ReferenceChoice('tb3_2', True, REF_PARAMETER)) == \
-        'reference robot tb3_2 (set by ~reference_robot): the merged frame is its map frame'
-    line = reference_message(ReferenceChoice('tb3_0', True, REF_PROPOSED))
-    assert line.startswith('reference robot tb3_0 (the first of ~robots by name; set ~reference_robot')
-    line = reference_message(ReferenceChoice('tb3_1', False, REF_FIRST_BY_NAME, ('tb3_1', 'tb3_2')))
-    assert line.startswith('reference robot tb3_1 for now (the first by name among the robots with a map: '
-                           'tb3_1, tb3_2)') and 'set ~reference_robot to fix it' in line
-    line = reference_message(ReferenceChoice('tb3_1', True, REF_FIRST_BY_NAME, ('tb3_0', 'tb3_1', 'tb3_2')))
-    assert line.startswith('reference robot tb3_1, fixed now that another robot is merged with it')
-    assert line.endswith('set ~reference_robot: tb3_1 for the same merged frame in every run')
-
-
 @pytest.mark.parametrize('topic,ttype,map_topic,pattern,robot', [
     ('/tb3_1/map', 'nav_msgs/OccupancyGrid', 'map', 'tb3_*', 'tb3_1'),
     # nested namespaces, as m-explore's map_merge finds them: the robot is the whole namespace
