@@ -93,9 +93,15 @@ def test_no_readme_parameter_row_outside_the_tables():
 
 
 def _node_modules():
-    """ros/node.py and the modules of ros/ it imports (the map_merge node's code)."""
-    src = read('src', 'multi_map_merge', 'ros', 'node.py')
-    mods = {'node'} | set(re.findall(r'^from \.(\w+) import', src, re.M))
+    """ros/node.py and the modules of ros/ it imports, directly or through each other (the
+    map_merge node's code)."""
+    mods, todo = set(), ['node']
+    while todo:
+        m = todo.pop()
+        if m in mods or not os.path.exists(os.path.join(REPO, 'src', 'multi_map_merge', 'ros', m + '.py')):
+            continue
+        mods.add(m)
+        todo += re.findall(r'^from \.(\w+) import', read('src', 'multi_map_merge', 'ros', m + '.py'), re.M)
     return sorted(os.path.join(REPO, 'src', 'multi_map_merge', 'ros', m + '.py') for m in mods)
 
 
