@@ -15,30 +15,19 @@ from __future__ import annotations
 
 import fnmatch
 from dataclasses import dataclass, field
-from typing import Any, Callable, Dict, List, Mapping, Optional, Tuple
+from typing import Any, Dict, List, Mapping, Optional, Tuple
 
 from ..core import parameters as P
 from ..core.config import MergeConfig
 
-# Views of the tables, by name (derived: nothing is declared here)
-#: every MergeConfig field: (converter, what it accepts)
-RULES: Dict[str, P.Rule] = {p.name: p.rule for p in P.config_parameters()}
-#: m-explore's parameter name -> (our parameter, conversion of its value or None)
-MEXPLORE_ALIASES: Dict[str, Tuple[str, Optional[Callable[[str], str]]]] = {
-    old: (p.name, conv) for p in P.parameters() for old, conv in p.mexplore}
-#: our own former names still read, with a warning: old name -> (new name, why)
-DEPRECATED: Dict[str, Tuple[str, str]] = {old: (p.name, why) for p in P.parameters() for old, why in p.deprecated}
-#: private parameters read by the libraries the node uses, not by MergeConfig: what they do
-LIBRARY_PARAMS: Dict[str, str] = {p.name: p.meaning for p in P.parameters() if p.library}
-#: ... their rules and defaults, checked as ours are (the node hands the library the value checked)
-LIBRARY_RULES: Dict[str, Tuple[P.Rule, Any]] = {p.name: (p.rule, p.default) for p in P.parameters() if p.library}
-#: m-explore's parameters read but without an equivalent here: why
-MEXPLORE_IGNORED: Dict[str, str] = P.MEXPLORE_IGNORED
+#: private parameters read by the libraries the node uses (not MergeConfig's), by name
+_LIBRARY: Dict[str, P.Parameter] = {p.name: p for p in P.parameters() if p.library}
 
 
 def check_library_param(name: str, value: Any) -> Tuple[Any, Optional[str]]:
-    """(the value to use, the error to log or None) for a library's parameter (LIBRARY_RULES)."""
-    (conv, _), default = LIBRARY_RULES[name]
+    """(the value to use, the error to log or None) for a library's parameter (one of the
+    tables' ``library`` rows, e.g. ``diagnostic_period``), checked as the node's own are."""
+    (conv, _), default = _LIBRARY[name].rule, _LIBRARY[name].default
     try:
         return conv(value), None
     except P.Invalid as e:
@@ -65,7 +54,7 @@ class Resolved:
     errors: List[str] = field(default_factory=list)
     warnings: List[str] = field(default_factory=list)
     notes: List[str] = field(default_factory=list)   # aliases read: worth an info line
-    library: Dict[str, Any] = field(default_factory=dict)   # LIBRARY_RULES' parameters, checked
+    library: Dict[str, Any] = field(default_factory=dict)   # the libraries' parameters, checked
     library_given: Dict[str, Any] = field(default_factory=dict)   # ... and as given (when given)
 
 
@@ -73,6 +62,6 @@ def resolve_params(given: Mapping[str, Any]) -> Resolved:
     """``given``: the node's private namespace as a mapping (name -> value)."""
     res = P.resolve(given)
     config = MergeConfig(**{p.name: res.values[p.name] for p in P.config_parameters()})
-    library = {name: res.values[name] for name in LIBRARY_RULES}
-    library_given = {name: given[name] for name in LIBRARY_RULES if name in given}
+    library = {name: res.values[name] for name in _LIBRARY}
+    library_given = {name: given[name] for name in _LIBRARY if name in given}
     return Resolved(config, res.errors, res.warnings, res.notes, library, library_given)

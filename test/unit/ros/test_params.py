@@ -9,17 +9,14 @@ import pytest
 import yaml
 from conftest import REPO
 
+from multi_map_merge.core import parameters as P
 from multi_map_merge.core.config import MergeConfig
-from multi_map_merge.ros.params import (
-    LIBRARY_PARAMS,
-    LIBRARY_RULES,
-    MEXPLORE_ALIASES,
-    MEXPLORE_IGNORED,
-    RULES,
-    check_library_param,
-    resolve_params,
-    robot_of_map_topic,
-)
+from multi_map_merge.ros.params import check_library_param, resolve_params, robot_of_map_topic
+
+# the tables (core/parameters.py), by name
+RULES = {p.name: p.rule for p in P.config_parameters()}                      # MergeConfig's
+LIBRARY_RULES = {p.name: (p.rule, p.default) for p in P.parameters() if p.library}
+MEXPLORE_ALIASES = {old: p.name for p in P.parameters() for old, _ in p.mexplore}
 
 
 def shipped_yaml():
@@ -116,7 +113,7 @@ def test_diagnostic_updaters_period_is_known_and_documented():
     assert not res.warnings and not res.errors and res.config == MergeConfig()
     with open(os.path.join(REPO, 'README.md')) as f:
         text = f.read()
-    for name in LIBRARY_PARAMS:
+    for name in LIBRARY_RULES:
         assert '| `~%s` |' % name in text, name
 
 
@@ -175,7 +172,7 @@ def test_the_readme_documents_every_alias():
     with open(os.path.join(REPO, 'README.md')) as f:
         text = f.read()
     assert 'Switching from m-explore' in text
-    for name in list(MEXPLORE_ALIASES) + list(MEXPLORE_IGNORED) + ['merged_map_topic']:
+    for name in list(MEXPLORE_ALIASES) + list(P.MEXPLORE_IGNORED) + ['merged_map_topic']:
         assert '`%s`' % name in text, name
 
 
