@@ -134,6 +134,29 @@ def lookup_transforms(parent: str, children: List[str], timeout: float) -> Dict[
     return out
 
 
+class Collector:
+    """Every message of ``topic`` that ``keep`` accepts, in arrival order (thread-safe)."""
+
+    def __init__(self, topic, msg_type, keep=lambda msg: True, queue_size=100):
+        self._lock = threading.Lock()
+        self._msgs = []
+        self._keep = keep
+        rospy.Subscriber(topic, msg_type, self._on_msg, queue_size=queue_size)
+
+    def _on_msg(self, msg):
+        if self._keep(msg):
+            with self._lock:
+                self._msgs.append(msg)
+
+    def messages(self):
+        with self._lock:
+            return list(self._msgs)
+
+    def clear(self):
+        with self._lock:
+            del self._msgs[:]
+
+
 class Listener:
     """Keeps the latest /map (and how many arrived) and /diagnostics per robot, with the wall
     time they arrived. The merger sends /map (latched) only when the merged map changed: wait

@@ -23,7 +23,6 @@ import re
 import subprocess
 import sys
 import tempfile
-import threading
 import time
 import unittest
 
@@ -31,7 +30,7 @@ import numpy as np
 import rospy
 import rostest
 from nav_msgs.msg import OccupancyGrid
-from rostest_helpers import make_lds02_driver_bag, skip_without_gmapping, stop_launch
+from rostest_helpers import Collector, make_lds02_driver_bag, skip_without_gmapping, stop_launch
 
 START = 60.0     # s into the bag: the robot is driving
 PLAY = 25.0      # s of wall time each replay is given (rate 1)
@@ -55,19 +54,11 @@ class TestBagReplayBaseScan(unittest.TestCase):
     @classmethod
     def setUpClass(cls):
         rospy.init_node('test_bag_replay_base_scan', anonymous=True)
-        cls.lock = threading.Lock()
-        cls.maps = []
-        rospy.Subscriber('/tb3_0/map', OccupancyGrid, cls._on_map, queue_size=5)
-
-    @classmethod
-    def _on_map(cls, msg):
-        with cls.lock:
-            cls.maps.append(msg)
+        cls.maps = Collector('/tb3_0/map', OccupancyGrid, queue_size=5)
 
     def replay(self, bag, log_dir, *args):
         """Play the bag through bag_replay.launch slam:=gmapping for PLAY s; the maps seen."""
-        with self.lock:
-            del self.maps[:]
+        self.maps.clear()
         os.makedirs(log_dir)
         # roslaunch's own output (the nodes' stderr, where roscpp's warnings go) beside the logs
         with open(os.path.join(log_dir, 'roslaunch-screen.log'), 'w') as screen:
@@ -80,8 +71,7 @@ class TestBagReplayBaseScan(unittest.TestCase):
                 time.sleep(PLAY)
             finally:
                 stop_launch(launch)
-        with self.lock:
-            return list(self.maps)
+        return self.maps.messages()
 
     def test_base_scan_bags_map_only_through_the_relay(self):
         skip_without_gmapping(self)

@@ -3,14 +3,13 @@
 its TF map -> <robot>/map (setup_check.test), on /tf and on /tf_static; the installed
 robot_state_publisher (1.15.2 or later here) gives no warning."""
 import sys
-import threading
 import time
 import unittest
 
 import rospy
 import rostest
 from rosgraph_msgs.msg import Log
-from rostest_helpers import MERGER, wait_until
+from rostest_helpers import MERGER, Collector, wait_until
 
 PKG = 'multi_map_merge'
 SENDERS = {'tb3_1/map': '/world_to_tb3_1_tf_broadcaster', 'tb3_2/map': '/tb3_2_static_map'}
@@ -21,19 +20,10 @@ class TestSetupCheck(unittest.TestCase):
     @classmethod
     def setUpClass(cls):
         rospy.init_node('test_setup_check', anonymous=True)
-        cls.lock = threading.Lock()
-        cls.logs = []
-        rospy.Subscriber('/rosout', Log, cls._on_log, queue_size=100)
-
-    @classmethod
-    def _on_log(cls, msg):
-        if msg.name == '/' + MERGER:
-            with cls.lock:
-                cls.logs.append(msg)
+        cls.logs = Collector('/rosout', Log, keep=lambda m: m.name == '/' + MERGER)
 
     def warnings(self, text):
-        with self.lock:
-            return [m.msg for m in self.logs if m.level == Log.WARN and text in m.msg]
+        return [m.msg for m in self.logs.messages() if m.level == Log.WARN and text in m.msg]
 
     def test_other_senders_of_a_robots_map_tf_are_named_once(self):
         def both():
