@@ -18,29 +18,122 @@ The default rates are calibrated on real gmapping maps of real laser logs (``mak
 link errors against the robots' true starts: docs/measurements.md); a map that does not drift
 (a map cut from a ground truth) is covered the more loosely.
 
+Where a map's heading can be read off its walls, it is measured rather than assumed
+(:class:`WallDirections`, :func:`turn`): most buildings are drawn on two perpendicular wall
+directions, so the walls' dominant direction modulo 90 degrees near the map's origin and near
+an overlap differ by what the map turned on the way there. It is read only where the walls
+around both places hold one direction clearly (:data:`MIN_COHERENCE`; a building of many wall
+directions, or a disc of clutter, says nothing), and a measured turn adds its square to the
+turn's variance on top of the rate's: the drift model covers the unmeasured, the measurement
+the heavy tail (a long corridor drawn turned by tens of degrees).
+
 Frames: metres and radians of the parent's map frame; the link's pose ``T`` (3x3) maps the
 child's map frame into the parent's, and its covariance is that of (x, y, yaw) of ``T``, as in
-:func:`covariance.metric_covariance`.
+:func:`covariance.metric_covariance`. :class:`WallDirections` works in a grid's cells (col, row);
+a turn is the same in cells and metres (a grid's cells are its frame's axes, scaled).
 """
 from __future__ import annotations
 
-from typing import Sequence
+import math
+from typing import Optional, Sequence
 
+import cv2
 import numpy as np
 
+from .grid import OCCUPIED
 
-def link_covariance(centre: Sequence[float], T: np.ndarray, rate: float, yaw_rate: float) -> np.ndarray:
+# metres around a place whose walls give its direction: a room or a stretch of corridor
+DIRECTION_RADIUS = 4.0
+# the walls' direction is read where its coherence (the resultant of the walls' gradient
+# directions modulo 90 degrees, weighted by strength, over their total: 1 for walls all on one
+# pair of perpendicular directions, 0 for walls in every direction) reaches this at both places
+MIN_COHERENCE = 0.3
+# wall cells a disc needs for its direction
+MIN_DIRECTION_CELLS = 40
+# a turn read beyond this (radians) is taken as unreadable: modulo 90 degrees, a turn near 45
+# is as likely its opposite
+MAX_TURN = math.radians(30.0)
+# a turn reported on /diagnostics from this size (radians)
+REPORT_TURN = math.radians(5.0)
+
+
+def link_covariance(centre: Sequence[float], T: np.ndarray, rate: float, yaw_rate: float,
+                    parent_turn: Optional[float] = None, child_turn: Optional[float] = None) -> np.ndarray:
     """The drift's covariance (3x3, of (x, y, yaw) of ``T``: metres^2 in the parent's frame,
     radians^2) of a link whose overlap is centred at ``centre`` ((2,), metres in the parent's
     map frame). The parent's origin is (0, 0) there, the child's ``T``'s translation.
     ``rate``: metres off per metre from a map's origin, ``yaw_rate``: radians turned per
-    square root of a metre (1 sigma)."""
+    square root of a metre (1 sigma); ``parent_turn``, ``child_turn``: radians each map was
+    measured to have turned between its origin and the overlap (:func:`turn`; None unmeasured).
+    A measured turn adds the heading error it makes (:func:`link_turn`, squared) and, in
+    position, the overlap's shift by a turn that happened anywhere on the way (a pivot uniform
+    between the origin and the overlap: ``turn^2 L^2 / 3``)."""
     c = np.asarray(centre, np.float64)
     t = np.asarray(T, np.float64)[:2, 2]
     far_parent, far_child = float(np.hypot(*c)), float(np.hypot(*(c - t)))
     var_xy = rate ** 2 * (far_parent ** 2 + far_child ** 2)
-    var_yaw = yaw_rate ** 2 * (far_parent + far_child)
+    var_xy += ((parent_turn or 0.0) * far_parent) ** 2 / 3.0 + ((child_turn or 0.0) * far_child) ** 2 / 3.0
+    var_yaw = yaw_rate ** 2 * (far_parent + far_child) + link_turn(parent_turn, child_turn) ** 2
     # the overlap shifted and turned about its centre: a turn moves the child's origin sideways
     lever = t - c
     G = np.array([[1.0, 0.0, -lever[1]], [0.0, 1.0, lever[0]], [0.0, 0.0, 1.0]])
     return G @ np.diag([var_xy, var_xy, var_yaw]) @ G.T
+
+
+class WallDirections:
+    """The walls' direction modulo 90 degrees around any place of one grid. Around a place, the
+    gradient of the (lightly smoothed) wall mask at each cell is taken as a vector at four
+    times its angle, so that walls along x and along y add up instead of cancelling; only the
+    disc's box is ever differentiated (a map holds no per-cell copy). ``levels``: a grid's levels
+    (or a crop of them, kept by reference), ``resolution``: metres per cell."""
+
+    def __init__(self, levels: np.ndarray, resolution: float):
+        self.levels = levels
+        self.radius_cells = DIRECTION_RADIUS / float(resolution)
+
+    def at(self, cell: Sequence[float]) -> Optional[float]:
+        """The walls' direction (radians, modulo 90 degrees, in [-45, 45)) within
+        :data:`DIRECTION_RADIUS` of ``cell`` ((col, row) of these levels); None where too few
+        walls lie there or they hold no one direction (:data:`MIN_COHERENCE`)."""
+        col, row = float(cell[0]), float(cell[1])
+        rc = self.radius_cells
+        h, w = self.levels.shape
+        # the disc's box and a margin for the smoothing and the gradient
+        r0, r1 = max(0, int(math.floor(row - rc)) - 3), min(h, int(math.ceil(row + rc)) + 4)
+        c0, c1 = max(0, int(math.floor(col - rc)) - 3), min(w, int(math.ceil(col + rc)) + 4)
+        if r1 - r0 < 3 or c1 - c0 < 3:
+            return None
+        walls = self.levels[r0:r1, c0:c1] == OCCUPIED
+        yy, xx = np.mgrid[r0:r1, c0:c1]
+        disc = (yy - row) ** 2 + (xx - col) ** 2 <= rc * rc
+        if int(walls[disc].sum()) < MIN_DIRECTION_CELLS:
+            return None
+        smooth = cv2.GaussianBlur(walls.astype(np.float32), (0, 0), 1.0)
+        gx = cv2.Sobel(smooth, cv2.CV_32F, 1, 0, ksize=3)[disc].astype(np.float64)
+        gy = cv2.Sobel(smooth, cv2.CV_32F, 0, 1, ksize=3)[disc].astype(np.float64)
+        strength = np.hypot(gx, gy)
+        angle4 = 4.0 * np.arctan2(gy, gx)
+        c, s = float((strength * np.cos(angle4)).sum()), float((strength * np.sin(angle4)).sum())
+        total = float(strength.sum())
+        if total <= 0.0 or math.hypot(c, s) < MIN_COHERENCE * total:
+            return None
+        return math.atan2(s, c) / 4.0
+
+
+def turn(directions: WallDirections, origin_cell: Sequence[float], place_cell: Sequence[float]) -> Optional[float]:
+    """How far (radians, counter-clockwise) a map turned between its frame's origin and a place,
+    both (col, row) of ``directions``' levels: the walls' direction there less the one at the
+    origin, modulo 90 degrees; None where either cannot be read or the turn is too near 45
+    degrees to tell from its opposite (:data:`MAX_TURN`)."""
+    a, b = directions.at(origin_cell), directions.at(place_cell)
+    if a is None or b is None:
+        return None
+    d = (b - a + math.pi / 4.0) % (math.pi / 2.0) - math.pi / 4.0
+    return d if abs(d) <= MAX_TURN else None
+
+
+def link_turn(parent_turn: Optional[float], child_turn: Optional[float]) -> float:
+    """How far (radians) two maps turned apart between their origins and their overlap, from
+    each one's :func:`turn` (an unmeasured one counts 0: the rate covers it): the error the
+    maps' turns put into the link's heading as a pose between their origins."""
+    return (parent_turn or 0.0) - (child_turn or 0.0)

@@ -51,6 +51,9 @@ class Link:
     bend: float = 0.0     # metres the halves of its overlap land apart (core/bend.py); 0 = unknown
     # where it was fitted: the overlap's centre (x, y), metres in the parent's frame (core/drift.py); None = unknown
     centre: Optional[Tuple[float, float]] = None
+    # radians each map turned between its origin and the overlap, read off its walls (core/drift.py); None = unread
+    parent_turn: Optional[float] = None
+    child_turn: Optional[float] = None
 
     def towards(self, parent: str) -> np.ndarray:
         """Pose of the other robot's frame in ``parent``'s frame."""

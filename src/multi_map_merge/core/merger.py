@@ -24,7 +24,7 @@ from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
-from . import bend, corroborate, deform, joint, links, placement, spawn, verify
+from . import bend, corroborate, deform, drift, joint, links, placement, spawn, verify
 from .composite import Lattice, Patch, composite, lattice_for, warp_patch
 from .config import MergeConfig
 from .grid import DEFAULT_FREE_THRESH, DEFAULT_OCC_THRESH, Grid, same_grid
@@ -112,6 +112,9 @@ class RobotStatus:
     # bend_maps: metres the merged map moves its map's walls at most off its placement to meet
     # the others' (core/deform.py: its field's largest node move); 0 when not bent
     bent: float = 0.0
+    # its verified links across whose overlap its own map turned from its origin, as its walls
+    # show (core/drift.py): (the other robot, radians), at least drift.REPORT_TURN, largest first
+    turns: Tuple[Tuple[str, float], ...] = ()
 
 
 class MapMerger:
@@ -523,11 +526,14 @@ class MapMerger:
                 covs = tuple((a, b, e.cov) for (a, b), e in sorted(self._edges.items()) if n in (a, b))
                 bends = tuple(sorted(((b if a == n else a, e.bend) for (a, b), e in self._edges.items()
                                       if n in (a, b) and e.bend >= bend.REPORT_BEND), key=lambda x: -x[1]))
+                turns = tuple(sorted(((b if a == n else a, t) for (a, b), e in self._edges.items() if n in (a, b)
+                                      for t in [e.parent_turn if a == n else e.child_turn]
+                                      if t is not None and abs(t) >= drift.REPORT_TURN), key=lambda x: -abs(x[1])))
                 m = self._maps.get(n)
                 field = self._fields.get(n)
                 out[n] = RobotStatus(pl is not None, n == ref, pl, last, other, self._errors.get(n, ''), links,
                                      covs, m.received if m is not None else None, bends,
-                                     field[1].largest() if field is not None else 0.0)
+                                     field[1].largest() if field is not None else 0.0, turns)
             return out
 
     def export_state(self) -> Dict:
@@ -625,7 +631,7 @@ class MapMerger:
             if self._edges.get(key) is not old:
                 return               # forgotten (reset, map restart) meanwhile
             self._edges[key] = Link(pa.name, ch.name, T, inlier_ratio, r.agreement, inliers, r.matches,
-                                    time.time(), r.overlap, r.cov, r.bend, r.centre)
+                                    time.time(), r.overlap, r.cov, r.bend, r.centre, r.parent_turn, r.child_turn)
             self.state_version += 1
 
     def align_robots(self, pa: RobotMap, ch: RobotMap, seed: int = 0) -> PairResult:

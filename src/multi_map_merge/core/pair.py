@@ -14,7 +14,7 @@ from typing import Optional, Tuple
 import cv2
 import numpy as np
 
-from . import bend, cache, covariance, matching, verify
+from . import bend, cache, covariance, drift, matching, verify
 from .config import MergeConfig
 from .features import FeatureExtractor, Features, coarsening
 from .grid import known_bbox
@@ -51,6 +51,9 @@ class PairResult:
             known cells, metres in the parent's map frame: where the link was fitted, whose
             distance from each map's origin is what the maps drifted on the way (:mod:`drift`);
             None when not computed.
+        parent_turn, child_turn: of an accepted estimate, radians each map turned between its
+            frame's origin and the overlap, read off its walls' direction (:func:`drift.turn`);
+            None where its walls do not tell.
         few_evidence: refused only for too little evidence (fewer than ``few_inliers`` RANSAC
             inliers, agreeing below ``few_inliers_min_agreement``), every other gate passed: a
             link that another such link can corroborate (:mod:`corroborate`).
@@ -70,6 +73,8 @@ class PairResult:
     bend: float = 0.0
     centre: Optional[Tuple[float, float]] = None
     few_evidence: bool = False
+    parent_turn: Optional[float] = None
+    child_turn: Optional[float] = None
 
 
 @dataclass
@@ -283,6 +288,20 @@ def _pin(config: MergeConfig, pa: PairInput, ch: PairInput, r: PairResult) -> No
     r.cov = covariance.metric_covariance(cov, centre, T, pa.resolution, pa.origin)
     W = cell_to_metric(pa.resolution, pa.origin)
     r.centre = tuple(float(v) for v in W[:2, :2] @ centre + W[:2, 2])
+    # how far each map turned on the way from its origin to the overlap, where its walls tell:
+    # the drift's model error measured rather than assumed (drift.py)
+    r.parent_turn = drift.turn(_directions(pa), _origin_cell(pa), p.centre)
+    r.child_turn = drift.turn(_directions(ch), _origin_cell(ch), apply(inverse(r.A), p.centre[None, :])[0])
+
+
+def _directions(p: PairInput) -> drift.WallDirections:
+    """The walls' directions of one side's crop."""
+    return drift.WallDirections(p.levels, p.resolution)
+
+
+def _origin_cell(p: PairInput) -> np.ndarray:
+    """(col, row) of the crop's cells where its map frame's origin lies."""
+    return apply(inverse(cell_to_metric(p.resolution, p.origin)), np.zeros((1, 2)))[0] - np.array(p.offset, np.float64)
 
 
 def _judge(c: MergeConfig, pa: PairInput, ch: PairInput, h: PairResult) -> None:

@@ -536,8 +536,9 @@ MERGER_ROWS = (
            "map's stretch between its origin and the overlap a link was fitted on (calibrated on real "
            'gmapping maps: docs/measurements.md). 0 for maps that do not drift (cut from one ground truth)')),
         _P('map_drift_yaw', 0.4, _float(0.0), 'deg/sqrt(m)',
-          'how far they sit turned, 1 sigma',
-          'how far they sit turned (1 sigma)'),
+          'how far they sit turned, 1 sigma (a turn read off the walls is added)',
+          ("how far they sit turned (1 sigma); where a map's walls show how far it turned between its origin "
+           'and an overlap (their direction modulo 90 degrees, `core/drift.py`), that turn is added')),
         _P('bend_maps', False, _BOOL, '',
           ('the merged map only: bend each placed map, smoothly and as far as map_drift allows, onto the '
            'walls of the maps it overlaps (TF stays rigid)'),

@@ -119,14 +119,15 @@ def link_covs(edges: Links, links: list) -> List[Optional[np.ndarray]]:
 
 def drift_covs(config: MergeConfig, edges: Links, links: list) -> List[Optional[np.ndarray]]:
     """:func:`link_covs` with each map's drift between its origin and the link's overlap added
-    (:func:`drift.link_covariance` at ``map_drift``, ``map_drift_yaw``; none for a link whose
-    overlap's centre is unknown)."""
+    (:func:`drift.link_covariance` at ``map_drift``, ``map_drift_yaw``, and the turns read off
+    the maps' walls; none for a link whose overlap's centre is unknown)."""
     rate, yaw_rate = config.map_drift, math.radians(config.map_drift_yaw)
     out = []
     for (a, b, _, _), C in zip(links, link_covs(edges, links)):
         e = edges[(a, b)]
         drifts = C is not None and e.centre is not None and (rate > 0 or yaw_rate > 0)
-        out.append(C + drift.link_covariance(e.centre, e.T, rate, yaw_rate) if drifts else C)
+        out.append(C + drift.link_covariance(e.centre, e.T, rate, yaw_rate, e.parent_turn, e.child_turn)
+                   if drifts else C)
     return out
 
 

@@ -30,12 +30,19 @@ def link_dict(e: Link) -> Dict[str, Any]:
     the pose of the child's map frame in the parent's), parent, child, inlier_ratio,
     agreement, inliers, matches, bend (metres its overlap's halves land apart, :mod:`bend`; 0
     unknown), centre (x, y of its overlap's centre, metres in the parent's frame, :mod:`drift`;
-    None unknown), and how well the grids pin it (:func:`cov_fields`)."""
+    None unknown), parent_turn and child_turn (radians each map turned from its origin to the
+    overlap, :func:`drift.turn`; None unread), and how well the grids pin it (:func:`cov_fields`)."""
     x, y, yaw = xyyaw(e.T)
     return {'x': float(x), 'y': float(y), 'yaw': float(yaw), 'parent': e.parent, 'child': e.child,
             'inlier_ratio': float(e.inlier_ratio), 'agreement': float(e.agreement),
             'inliers': int(e.inliers), 'matches': int(e.matches), 'bend': float(e.bend),
-            'centre': None if e.centre is None else [float(v) for v in e.centre], **cov_fields(e.cov)}
+            'centre': None if e.centre is None else [float(v) for v in e.centre],
+            'parent_turn': _optional_float(e.parent_turn), 'child_turn': _optional_float(e.child_turn),
+            **cov_fields(e.cov)}
+
+
+def _optional_float(v: Optional[float]) -> Optional[float]:
+    return None if v is None else float(v)
 
 
 def link_from_dict(d: Dict[str, Any], stamp: float) -> Link:
@@ -50,6 +57,8 @@ def link_from_dict(d: Dict[str, Any], stamp: float) -> Link:
     e.bend = float(d.get('bend', 0.0))   # (files written before bends were measured have none)
     if d.get('centre') is not None:      # (nor before the drift's model error)
         e.centre = (float(d['centre'][0]), float(d['centre'][1]))
+    # (nor, before the maps' turns were read, turns)
+    e.parent_turn, e.child_turn = _optional_float(d.get('parent_turn')), _optional_float(d.get('child_turn'))
     return e
 
 

@@ -7,6 +7,7 @@ node): each function fills the status object the updater hands it (a
 """
 from __future__ import annotations
 
+import math
 from typing import Dict, List, Optional
 
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
@@ -93,6 +94,11 @@ def robot_diagnostic(robot: str, st: RobotStatus, gone: bool, now: float,
         s.message += '; ' + '; '.join("%s's map bends %.2f m across its overlap with %s" % (robot, m, other)
                                       for other, m in st.bends)
         kv += [('bends', ' '.join('%s:%.2f' % (other, m) for other, m in st.bends))]
+    if st.turns:
+        # a note, not a level: the turn is in the placement's covariance, which sets ``weak``
+        s.message += '; ' + '; '.join("%s's map turns %.0f deg between its start and its overlap with %s"
+                                      % (robot, math.degrees(t), other) for other, t in st.turns)
+        kv += [('turns (deg)', ' '.join('%s:%.1f' % (other, math.degrees(t)) for other, t in st.turns))]
     if st.bent > 0.0:
         # ~bend_maps: how far the merged map moves this map's walls off its (rigid) placement
         kv += [('bent in the merged map (m)', '%.2f' % st.bent)]

@@ -2,11 +2,14 @@
 import math
 import os
 
+import cv2
 import numpy as np
+import pytest
 import yaml
 from conftest import DATA, merged
 
 from multi_map_merge.core import drift
+from multi_map_merge.core.grid import FREE, OCCUPIED
 from multi_map_merge.core.transforms import se2, xyyaw
 
 RATE, YAW_RATE = 0.02, math.radians(0.4)
@@ -55,3 +58,69 @@ def test_real_gmapping_maps_placements_are_within_their_ellipse_of_the_true_star
     # the drift widens what the placement is known to; it does not move it
     for r in with_drift:
         assert np.allclose(with_drift[r][1], walls_only[r][1])
+
+
+RES = 0.05
+
+
+def rooms(levels, centre, turn_deg, size_m=8.0, spacing_m=2.0):
+    """Walls of a square of rooms (``spacing_m`` apart) around ``centre`` (col, row), drawn
+    turned by ``turn_deg`` counter-clockwise in the grid's cells."""
+    c, s = math.cos(math.radians(turn_deg)), math.sin(math.radians(turn_deg))
+    half = size_m / RES / 2.0
+    for k in np.arange(-half, half + 1e-9, spacing_m / RES):
+        for (a, b) in (((k, -half), (k, half)), ((-half, k), (half, k))):
+            p = [(int(round(centre[0] + c * x - s * y)), int(round(centre[1] + s * x + c * y))) for x, y in (a, b)]
+            cv2.line(levels, p[0], p[1], int(OCCUPIED), 1)
+
+
+@pytest.fixture
+def turned_map():
+    """A map whose rooms at its origin (cell (100, 100)) are drawn square and whose rooms 20 m
+    away are drawn turned by 12 degrees: its heading turned on the way."""
+    levels = np.full((600, 600), FREE, np.uint8)
+    rooms(levels, (100, 100), 0.0)
+    rooms(levels, (500, 100), 12.0)
+    return levels
+
+
+def test_a_maps_turn_is_read_off_its_walls(turned_map):
+    d = drift.WallDirections(turned_map, RES)
+    t = drift.turn(d, (100, 100), (500, 100))
+    assert t is not None and abs(math.degrees(t) - 12.0) < 1.0, t
+    assert abs(drift.turn(d, (500, 100), (100, 100)) + t) < 1e-9        # the way back turns back
+    assert abs(math.degrees(drift.turn(d, (100, 100), (120, 110)))) < 0.5   # the same rooms
+
+
+def test_walls_of_every_direction_or_none_say_nothing(turned_map):
+    levels = turned_map.copy()
+    rng = np.random.default_rng(0)
+    for a in rng.uniform(0.0, math.pi, 40):        # a far place of walls in every direction
+        p0 = (300 + int(70 * math.cos(a)), 500 + int(70 * math.sin(a)))
+        p1 = (300 - int(70 * math.cos(a)), 500 - int(70 * math.sin(a)))
+        cv2.line(levels, p0, p1, int(OCCUPIED), 1)
+    d = drift.WallDirections(levels, RES)
+    assert d.at((300, 500)) is None
+    assert drift.turn(d, (100, 100), (300, 500)) is None
+    assert d.at((300, 300)) is None                 # no walls there
+    assert d.at((-500, -500)) is None               # off the map
+
+
+def test_a_turn_near_45_degrees_is_not_told_from_its_opposite():
+    levels = np.full((600, 600), FREE, np.uint8)
+    rooms(levels, (100, 100), 0.0)
+    rooms(levels, (500, 100), 40.0)
+    assert drift.turn(drift.WallDirections(levels, RES), (100, 100), (500, 100)) is None
+
+
+def test_a_measured_turn_widens_the_heading_and_the_position():
+    T = se2(10.0, 0.0, 0.5)
+    base = drift.link_covariance((4.0, 0.0), T, RATE, YAW_RATE)
+    assert np.allclose(drift.link_covariance((4.0, 0.0), T, RATE, YAW_RATE, None, None), base)
+    tp, tc = math.radians(20.0), math.radians(2.0)
+    both = drift.link_covariance((4.0, 0.0), T, RATE, YAW_RATE, tp, tc)
+    assert both[2, 2] == pytest.approx(base[2, 2] + (tp - tc) ** 2)
+    # the overlap 4 m from the parent's origin and 6 m from the child's: shifted by a turn
+    # anywhere on the way
+    assert both[0, 0] == pytest.approx(base[0, 0] + (tp * 4.0) ** 2 / 3.0 + (tc * 6.0) ** 2 / 3.0)
+    assert drift.link_turn(tp, None) == tp and drift.link_turn(None, None) == 0.0

@@ -1,5 +1,7 @@
 """The node's /diagnostics as pure functions of the merger's status (ros/diagnostics.py; needs
 the message classes, no master): each robot's status and the node's own."""
+import math
+
 import numpy as np
 import pytest
 
@@ -288,6 +290,16 @@ def test_a_bent_overlap_is_named_in_the_robots_message():
     assert s.level == DiagnosticStatus.OK          # the bend is in the covariance, which sets weak
     assert values(s)['bends'] == 'tb3_0:0.43'
     assert 'bends' not in values(robot_diagnostic('tb3_1', merged(), False, NOW))
+
+
+def test_a_map_that_turned_on_the_way_to_an_overlap_is_named_in_the_robots_message():
+    st = merged()
+    st.turns = (('tb3_1', math.radians(22.0)),)
+    s = robot_diagnostic('tb3_0', st, False, NOW)
+    assert s.message == "merged via tb3_0; tb3_0's map turns 22 deg between its start and its overlap with tb3_1"
+    assert s.level == DiagnosticStatus.OK          # the turn is in the covariance, which sets weak
+    assert values(s)['turns (deg)'] == 'tb3_1:22.0'
+    assert 'turns (deg)' not in values(robot_diagnostic('tb3_1', merged(), False, NOW))
 
 
 def test_a_map_bent_in_the_merged_map_says_how_far():
