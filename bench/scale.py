@@ -27,12 +27,14 @@ robot, the late joiner, publishes its first map at its own slot of the first per
 other robot is placed, then a new version every period. The maps are fed, from a thread of
 their own, through ``MapMerger.update_map`` as the node's subscribers feed them.
 
-The merge loop runs cycles back to back, as the node's estimation thread would with no rate
-limit: a cycle is ``estimate()`` then ``compose()`` (the node runs them in two threads; here in
-one, so that what a cycle's merged map holds is well defined), each taking the newest maps.
-A cycle starts as soon as a map arrived since the previous one started (a cycle with nothing
-new computes nothing: waiting for news instead of spinning keeps the process's CPU for the
-work measured).
+The merger runs as the node runs it, in three threads of this process: estimation cycles
+(``estimate()``) back to back, each taking the newest maps (the node's estimation thread with no
+rate limit; a cycle starts as soon as a map arrived since the previous one started: a cycle with
+nothing new computes nothing, and waiting for news instead of spinning keeps the CPU for the work
+measured); compositing (``compose()``, the node's compositing thread: again after half a merge
+period); publishing every merge period (``1 / merge_rate``, 0.5 s: the node's /map timer) the
+newest composited grid when it is a new one (``ros.convert.grid_to_msg`` and the message
+serialised, as the node sends it; timed without it when rospy is not importable).
 
 Phases. Cold start: from the first map until the end of the first cycle in which every robot
 but the joiner is placed (or ``COLD_CAP`` of the size's time without it). Then R update rounds
@@ -44,17 +46,16 @@ after which every round's versions are absorbed and the joiner is placed, or at
 Reported per team size (seconds are wall seconds, errors metres):
 
   round of updates  the estimation time needed to absorb one new version of every robot's map:
-                    over the cycles after the cold start, the sum of their ``estimate()``
+                    over the estimation cycles after the cold start, the sum of their ``estimate()``
                     seconds over the sum, per cycle, of the share of the robots whose map it
                     took anew (a cycle that took a new version of every robot counts 1).
                     Above ``PERIOD`` the merger cannot keep up with the robots.
   staleness         per new version of a robot placed when it arrived (rounds 1..R): from its
-                    arrival to the end of the first cycle whose ``estimate()`` took it (or a
-                    later version of that robot) and whose merged map therefore reflects it,
-                    its placement estimated against it; p50 and p95, and p95 in merge periods
-                    (the median duration of a cycle after the cold start: ``estimate()`` +
-                    ``compose()``). ``shown_*`` in the JSON: until a ``compose()`` took it at
-                    the kept placement (what the node's compositing thread shows sooner).
+                    arrival to the end of the first publication of a merged map that holds it
+                    (or a later version of that robot's map), at the robot's kept placement;
+                    p50 and p95, and p95 in merge periods (``1 / merge_rate``). Beside it
+                    (``placed_*``): until the end of the first estimation cycle that took it,
+                    the robot's placement estimated against it (how far estimation lags).
   late joiner       from the joiner's first map's arrival to the end of the first cycle that
                     placed it.
   worst error       at the end of the run, the largest distance between a placed robot's map
@@ -149,9 +150,10 @@ def percentile(values: Sequence[float], q: float) -> Optional[float]:
 
 
 def absorbed_end(cycles: Sequence[dict], robot: str, version: int, key: str = 'taken') -> Optional[float]:
-    """End (s) of the first cycle whose ``key`` ('taken': by ``estimate()``; 'shown': by
-    ``compose()``) holds ``robot``'s version ``version`` or a later one; None when none did.
-    ``cycles`` in the order they ran."""
+    """End (s) of the first of ``cycles`` (records in the order they ended: estimation cycles,
+    whose 'taken' are the versions ``estimate()`` took, or publications, whose 'shown' are the
+    versions the merged map they sent holds) whose ``key`` holds ``robot``'s version
+    ``version`` or a later one; None when none does."""
     for c in cycles:
         if c[key].get(robot, -1) >= version:
             return c['end']
@@ -160,7 +162,7 @@ def absorbed_end(cycles: Sequence[dict], robot: str, version: int, key: str = 't
 
 def staleness(updates: Sequence[dict], cycles: Sequence[dict], key: str = 'taken') -> List[Optional[float]]:
     """Per update (a dict with 'robot', 'version', 'arrival'), seconds from its arrival to the
-    end of the first cycle that took it (:func:`absorbed_end`); None when no cycle did."""
+    end of the first of ``cycles`` that holds it (:func:`absorbed_end`); None when none does."""
     out = []
     for u in updates:
         end = absorbed_end(cycles, u['robot'], u['version'], key)
@@ -237,19 +239,23 @@ def summarise(run: dict) -> dict:
     first = next(i for i, c in enumerate(cycles) if c['start'] >= cold_end) if any(
         c['start'] >= cold_end for c in cycles) else len(cycles)
     after = cycles[first:]
-    out['period_s'] = float(np.median([c['end'] - c['start'] for c in after])) if after else None
+    out['cycle_s'] = float(np.median([c['end'] - c['start'] for c in after])) if after else None
     placed_at = [u for u in updates if u['placed']]
     by_round = rounds_of(placed_at, cold_end, run['rounds'])
+    # a round is complete when estimation took every version of it (or a later one)
     complete, samples, lag = 0, [], []
     for k, us in enumerate(by_round):
-        st = staleness(us, cycles)
-        if not us or any(s is None for s in st):
+        est = staleness(us, cycles)
+        shown = staleness(us, run['publishes'], 'shown')
+        if not us or any(v is None for v in est + shown):
             break
         complete = k + 1
-        samples += st
-        lag.append(float(np.median(st)))
+        samples += shown
+        lag.append(float(np.median(est)))
     out['rounds_complete'] = complete
     out['lag_by_round'] = lag
+    period = run['merge_period_s']
+    out['merge_period_s'] = period
     if complete == 0:
         inv['round'] = inv['staleness'] = (
             'the run ended (%.0f s) before round 1 of updates was absorbed' % run['wall_s'])
@@ -262,12 +268,10 @@ def summarise(run: dict) -> dict:
         out['stale_p50_s'] = percentile(samples, 50)
         out['stale_p95_s'] = percentile(samples, 95)
         out['stale_n'] = len(samples)
-        shown = [s for s in staleness([u for us in by_round[:complete] for u in us], cycles, 'shown')
-                 if s is not None]
-        out['shown_p50_s'], out['shown_p95_s'] = percentile(shown, 50), percentile(shown, 95)
-        if out['period_s']:
-            out['stale_p50_periods'] = out['stale_p50_s'] / out['period_s']
-            out['stale_p95_periods'] = out['stale_p95_s'] / out['period_s']
+        out['stale_p50_periods'] = out['stale_p50_s'] / period
+        out['stale_p95_periods'] = out['stale_p95_s'] / period
+        est = [v for v in staleness([u for us in by_round[:complete] for u in us], cycles)]
+        out['placed_p50_s'], out['placed_p95_s'] = percentile(est, 50), percentile(est, 95)
     j = run['joiner']
     if j['arrival'] is None:
         inv['joiner'] = ('it never joined: the others were not all placed (%d of %d) by the end of the cold '
@@ -308,17 +312,23 @@ def detail_lines(run: dict, s: dict) -> List[str]:
     if 'all' in s.get('invalid', {}):
         return out
     after = [c for c in run['cycles'] if run['cold_end'] is not None and c['start'] >= run['cold_end']]
-    out.append('  cold start: %d of %d robots placed in %s s (%d cycles); then %d cycles, merge period (median '
-               'cycle) %s s; %d of %d rounds of updates absorbed; staleness p50 by round: %s s' % (
+    out.append('  cold start: %d of %d robots placed in %s s (%d estimation cycles); then %d cycles of %s s '
+               '(median); %d of %d rounds of updates absorbed' % (
                    run['cold_placed'], run['robots'] - 1, fmt_s(run['cold_end']),
-                   len(run['cycles']) - len(after), len(after), fmt_s(s.get('period_s')),
-                   s.get('rounds_complete', 0), run['rounds'],
-                   ', '.join(fmt_s(v) for v in s.get('lag_by_round', [])) or '-'))
+                   len(run['cycles']) - len(after), len(after), fmt_s(s.get('cycle_s')),
+                   s.get('rounds_complete', 0), run['rounds']))
     if s.get('stale_p50_periods') is not None:
-        out.append('  staleness in merge periods: p50 %.1f, p95 %.1f (%d updates); until a compose() showed it at '
-                   'the kept placement: p50 %s s, p95 %s s' % (
-                       s['stale_p50_periods'], s['stale_p95_periods'], s['stale_n'],
-                       fmt_s(s.get('shown_p50_s')), fmt_s(s.get('shown_p95_s'))))
+        out.append('  staleness: p50 %.1f, p95 %.1f merge periods of %s s (%d updates); until estimation took it: '
+                   'p50 %s s, p95 %s s; by round (p50): %s s' % (
+                       s['stale_p50_periods'], s['stale_p95_periods'], fmt_s(s['merge_period_s']), s['stale_n'],
+                       fmt_s(s.get('placed_p50_s')), fmt_s(s.get('placed_p95_s')),
+                       ', '.join(fmt_s(v) for v in s.get('lag_by_round', []))))
+    pubs = run['publishes']
+    if pubs:
+        out.append('  compositing: %d new merged maps, compose() %.1f ms (median, max %.1f ms); %d published%s' % (
+            run['composes'], 1000.0 * (run['compose_p50_s'] or 0.0), 1000.0 * (run['compose_max_s'] or 0.0),
+            len(pubs),
+            '' if run['serialised'] else ' (not serialised: rospy not importable)'))
     br = run.get('breakdown_after')
     if br:
         out.append('  estimate() after the cold start: %s s in all: %s' % (
@@ -469,6 +479,70 @@ class Feeder(threading.Thread):
             return dict(self.fed)
 
 
+class Outputs:
+    """The node's compositing thread and /map timer (``ros/node.py``): ``compose()`` again
+    after half a merge period, and every merge period the newest composited grid published
+    when it is a new one; records each publication ({'start', 'end', 'shown': the versions of
+    the robots placed when the grid was composited})."""
+
+    def __init__(self, merger, feeder: Feeder, period: float, frame: str):
+        self.merger, self.feeder, self.period, self.frame = merger, feeder, period, frame
+        self.stop = threading.Event()
+        self.publishes: List[dict] = []
+        self.compose_s: List[float] = []    # s, of each compose() that made a new merged grid
+        self._ready = None     # (grid, versions it holds)
+        try:
+            import rospy
+
+            from multi_map_merge.ros.convert import grid_to_msg
+            self.serialise = (rospy, grid_to_msg)
+        except ImportError:
+            self.serialise = None
+        self._threads = [threading.Thread(target=self._compositing, name='compositing', daemon=True),
+                         threading.Thread(target=self._publishing, name='publishing', daemon=True)]
+
+    def start(self) -> None:
+        for t in self._threads:
+            t.start()
+
+    def join(self, timeout: float) -> None:
+        for t in self._threads:
+            t.join(timeout)
+
+    def _compositing(self) -> None:
+        last = None
+        while not self.stop.is_set():
+            t = time.monotonic()
+            # the versions before compose() takes its own: a map fed in between is credited to a later grid
+            fed = self.feeder.taken()
+            placed = set(self.merger.placements())
+            grid = self.merger.compose()
+            if grid is not None and grid is not last:
+                # (an unchanged merge returns the very same grid at once: not counted)
+                self.compose_s.append(time.monotonic() - t)
+                last = grid
+                self._ready = (grid, {r: v for r, v in fed.items() if r in placed})
+            self.stop.wait(max(0.01, self.period / 2.0 - (time.monotonic() - t)))
+
+    def _publishing(self) -> None:
+        import io
+        sent = None
+        tick = time.monotonic()
+        while not self.stop.is_set():
+            tick += self.period
+            self.stop.wait(max(0.0, tick - time.monotonic()))
+            tick = max(tick, time.monotonic() - self.period)   # a late tick is not made up for
+            ready = self._ready
+            if ready is None or ready[0] is sent:
+                continue
+            start = self.feeder.now()
+            if self.serialise is not None:
+                rospy, grid_to_msg = self.serialise
+                grid_to_msg(ready[0], rospy.Time(0), self.frame).serialize(io.BytesIO())
+            sent = ready[0]
+            self.publishes.append({'start': start, 'end': self.feeder.now(), 'shown': ready[1]})
+
+
 class Timers:
     """Seconds spent in some steps of ``estimate()`` (the pairs in the worker pool, the pose
     graph, the joint refinement, the bending), by wrapping the core's functions in this
@@ -534,7 +608,9 @@ def run_team(robots: int, rounds: int, world_name: str, seed: int, max_s: float,
     timers = Timers()
     t0 = time.monotonic()
     feeder = Feeder(merger, bots, t0, joiner)
+    outputs = Outputs(merger, feeder, 1.0 / cfg.merge_rate, cfg.merged_map_frame)
     feeder.start()
+    outputs.start()
     cycles: List[dict] = []
     seen = 0
     cold_end, cold_placed = None, 0
@@ -552,15 +628,12 @@ def run_team(robots: int, rounds: int, world_name: str, seed: int, max_s: float,
             taken = feeder.taken()
             start = feeder.now()
             events = merger.estimate()
-            est_end = feeder.now()
-            shown = feeder.taken()
-            merger.compose()
             end = feeder.now()
             placed = sorted(merger.placements())
             spent, pairs = timers.take()
             with feeder.cond:
                 feeder.placed = set(placed)
-            cycles.append({'start': start, 'est_s': est_end - start, 'end': end, 'taken': taken, 'shown': shown,
+            cycles.append({'start': start, 'est_s': end - start, 'end': end, 'taken': taken,
                            'placed': len(placed), 'pairs': pairs, 'steps': spent, 'events': len(events)})
             others = [b.name for b in bots if b.name != joiner]
             if cold_end is None:
@@ -581,7 +654,9 @@ def run_team(robots: int, rounds: int, world_name: str, seed: int, max_s: float,
                 break
     finally:
         feeder.stop.set()
+        outputs.stop.set()
         feeder.join(5.0)
+        outputs.join(30.0)
     wall = feeder.now()
     ref = merger.reference
     P = merger.placements()
@@ -617,6 +692,10 @@ def run_team(robots: int, rounds: int, world_name: str, seed: int, max_s: float,
             'reference': ref, 'placed_end': sorted(P), 'errors': errors, 'wall_s': wall, 'stop': stop_why,
             'grew_cells': [int(np.median(first)) if first else 0, int(np.median(last)) if last else 0],
             'feed_late_max_s': feeder.late_max, 'breakdown_after': breakdown,
+            'publishes': outputs.publishes, 'merge_period_s': outputs.period,
+            'serialised': outputs.serialise is not None,
+            'composes': len(outputs.compose_s), 'compose_p50_s': percentile(outputs.compose_s, 50),
+            'compose_max_s': max(outputs.compose_s) if outputs.compose_s else None,
             'pairs_after': sum(c['pairs'] for c in after), 'paths': paths,
             'truth': {b.name: b.T.tolist() for b in bots}, 'loadavg_end': list(os.getloadavg())}
 
