@@ -647,11 +647,18 @@ def run_team(robots: int, rounds: int, world_name: str, seed: int, max_s: float,
                 joiner_placed = end
             if cold_end is not None and _done(feeder.updates, cycles, cold_end, rounds, joiner_placed,
                                               joiner_deadline(feeder.updates, cycles, joiner), end):
-                stop_why = 'rounds absorbed and joiner placed'
+                stop_why = 'rounds absorbed, joiner %s' % ('placed' if joiner_placed is not None else 'given up')
                 break
             if end >= max_s:
                 stop_why = 'time limit (%.0f s)' % max_s
                 break
+        if stop_why.startswith('rounds'):
+            # the last cycle's placements reach /map at the next compositing and timer tick: wait for
+            # the publication of every version of the rounds (at most 10 merge periods)
+            ups = [u for us in rounds_of([u for u in feeder.updates if u['placed']], cold_end, rounds) for u in us]
+            until = feeder.now() + 10.0 * outputs.period
+            while feeder.now() < until and None in staleness(ups, list(outputs.publishes), 'shown'):
+                time.sleep(0.1)
     finally:
         feeder.stop.set()
         outputs.stop.set()
@@ -769,6 +776,21 @@ def run_peer(paths: List[str], truth: Dict[str, list], timeout: float = PEER_TIM
 
 # ---------------------------------------------------------------- driver
 
+def compact(run: dict) -> dict:
+    """``run`` for the JSON file: each update with its staleness ('shown_s': until a published
+    merged map held it; 'taken_s': until an estimation cycle took it; None: never), the
+    publications as their times only (their versions are what those figures are made of)."""
+    out = dict(run)
+    out.pop('paths', None)
+    ups = []
+    for u, shown, taken in zip(run['updates'], staleness(run['updates'], run['publishes'], 'shown'),
+                               staleness(run['updates'], run['cycles'])):
+        ups.append(dict(u, shown_s=shown, taken_s=taken))
+    out['updates'] = ups
+    out['publishes'] = [[round(p['start'], 4), round(p['end'], 4)] for p in run['publishes']]
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     ap.add_argument('--sizes', default=','.join(str(s) for s in SIZES), help='team sizes, e.g. 8,16')
@@ -818,13 +840,13 @@ def main(argv=None) -> int:
         else:
             why = peer_plan(n, peer_before)
             p = {'run': False, 'why': why} if why else run_peer(run['paths'], run['truth'])
-            peer_before = (n, p)
+            if p.get('run') or p.get('timed_out'):
+                peer_before = (n, p)   # a size skipped by the prediction predicts nothing
         block.append(peer_line(n, p))
         for line in block:
             print(line, flush=True)
         lines += block
-        run.pop('paths', None)
-        out['sizes'][str(n)] = {'summary': s, 'run': run, 'mexplore': p}
+        out['sizes'][str(n)] = {'summary': s, 'run': compact(run), 'mexplore': p}
     out['wall_s'] = time.monotonic() - t_all
     out['loadavg_end'] = list(os.getloadavg())
     lines.append('(%s; %d cores, load %.1f at the start, %.1f at the end; %.0f s in all)' % (
