@@ -40,8 +40,10 @@ Phases. Cold start: from the first map until the end of the first cycle in which
 but the joiner is placed (or ``COLD_CAP`` of the size's time without it). Then R update rounds
 (``--rounds``): round k is every map version that arrives in the k-th period after the cold
 start ended (one new version of every robot). The run stops at the end of the first cycle
-after which every round's versions are absorbed and the joiner is placed, or at
-``--max-minutes`` (checked at the end of each cycle: a cycle is never cut).
+after which every round's versions are absorbed and the joiner is placed (or given up on: its
+whole window known, ``GROW_S`` after its first map, and three more cycles of the median length
+run), once every version of the rounds was published; or at ``--max-minutes`` (checked at the
+end of each cycle: a cycle is never cut).
 
 Reported per team size (seconds are wall seconds, errors metres):
 
