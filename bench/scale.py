@@ -75,7 +75,7 @@ with why):
     scale: R robots: round of updates X s, staleness p50 A s p95 B s (C merge periods),
     late joiner placed in D s, worst placement error E m
 
-Writes ``<results>/scale.json`` (every cycle and every update, per size) and
+Writes ``<results>/scale.json`` (every estimation cycle and every update, per size) and
 ``<results>/scale.txt`` (the lines). Needs ``export PATH=/usr/bin:$PATH`` (Debian's python3: cv2,
 numpy); no ROS master.
 """
@@ -778,18 +778,24 @@ def run_peer(paths: List[str], truth: Dict[str, list], timeout: float = PEER_TIM
 
 # ---------------------------------------------------------------- driver
 
+UPDATE_FIELDS = ('robot', 'version', 'arrival', 'placed', 'known', 'shown_s', 'taken_s')
+
+
 def compact(run: dict) -> dict:
-    """``run`` for the JSON file: each update with its staleness ('shown_s': until a published
-    merged map held it; 'taken_s': until an estimation cycle took it; None: never), the
-    publications as their times only (their versions are what those figures are made of)."""
+    """``run`` for the JSON file: the updates as rows of ``UPDATE_FIELDS`` (arrival s; placed
+    when it arrived; its known cells; its staleness: 'shown_s' until a published merged map held
+    it, 'taken_s' until an estimation cycle took it, None: never; seconds to the millisecond),
+    the publications as their times only (their versions are what those figures are made of)."""
+    def ms(v):
+        return None if v is None else round(v, 3)
     out = dict(run)
     out.pop('paths', None)
-    ups = []
-    for u, shown, taken in zip(run['updates'], staleness(run['updates'], run['publishes'], 'shown'),
-                               staleness(run['updates'], run['cycles'])):
-        ups.append(dict(u, shown_s=shown, taken_s=taken))
-    out['updates'] = ups
-    out['publishes'] = [[round(p['start'], 4), round(p['end'], 4)] for p in run['publishes']]
+    out['update_fields'] = list(UPDATE_FIELDS)
+    out['updates'] = [[u['robot'], u['version'], ms(u['arrival']), u['placed'], u['known'], ms(shown), ms(taken)]
+                      for u, shown, taken in zip(run['updates'],
+                                                 staleness(run['updates'], run['publishes'], 'shown'),
+                                                 staleness(run['updates'], run['cycles']))]
+    out['publishes'] = [[ms(p['start']), ms(p['end'])] for p in run['publishes']]
     return out
 
 
@@ -856,7 +862,7 @@ def main(argv=None) -> int:
         out['loadavg_end'][0], out['wall_s']))
     print(lines[-1])
     with open(os.path.join(a.results, 'scale.json'), 'w') as f:
-        json.dump(out, f, indent=1)
+        json.dump(out, f, separators=(',', ':'))   # (one line: thousands of update rows)
     with open(os.path.join(a.results, 'scale.txt'), 'w') as f:
         f.write('\n'.join(lines) + '\n')
     return 0

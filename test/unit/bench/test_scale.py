@@ -211,3 +211,13 @@ def test_mexplore_is_not_run_where_its_cycle_would_pass_the_limit():
 def test_seconds_are_printed_with_three_figures_at_most():
     assert [scale.fmt_s(v) for v in (None, 0.004, 1.234, 12.34, 123.4)] == ['-', '0.00', '1.23', '12.3', '123']
     assert math.isclose(float(scale.fmt_s(4.999)), 5.0)
+
+
+def test_the_json_keeps_each_update_with_its_two_stalenesses():
+    rec = run_record(paths=['x.yaml'])
+    rec['updates'] = [dict(u, known=10) for u in rec['updates']]
+    out = scale.compact(rec)
+    assert 'paths' not in out and out['update_fields'][0] == 'robot'
+    row = dict(zip(out['update_fields'], out['updates'][0]))
+    assert row['robot'] == 'r00' and row['version'] == 1 and row['shown_s'] == 1.5 and row['taken_s'] == 1.0
+    assert out['publishes'][0] == [2.49, 2.5]
