@@ -275,9 +275,10 @@ def summarise(run: dict) -> dict:
         est = [v for v in staleness([u for us in by_round[:complete] for u in us], cycles)]
         out['placed_p50_s'], out['placed_p95_s'] = percentile(est, 50), percentile(est, 95)
     j = run['joiner']
-    if j['arrival'] is None:
-        inv['joiner'] = ('it never joined: the others were not all placed (%d of %d) by the end of the cold '
-                         'start' % (run['cold_placed'], run['robots'] - 1))
+    if j['arrival'] is None and j.get('scheduled') is not None:
+        inv['joiner'] = 'the run ended (%.0f s) before its first map, due at %.0f s' % (run['wall_s'], j['scheduled'])
+    elif j['arrival'] is None:
+        inv['joiner'] = 'it never joined: the run ended (%.0f s) before the cold start did' % run['wall_s']
     elif j['placed_end'] is None:
         inv['joiner'] = 'not placed within %.0f s of its first map' % (run['wall_s'] - j['arrival'])
     else:

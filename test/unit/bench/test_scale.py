@@ -191,8 +191,9 @@ def test_a_run_that_ended_before_a_round_was_absorbed_is_invalid():
 
 
 def test_a_joiner_that_never_came_or_was_never_placed_is_said_so():
-    s = scale.summarise(run_record(joiner={'name': 'r02', 'arrival': None, 'placed_end': None}))
-    assert 'late joiner placed in INVALID (it never joined' in scale.scale_line(3, s)
+    s = scale.summarise(run_record(joiner={'name': 'r02', 'scheduled': 14.0, 'arrival': None, 'placed_end': None}))
+    assert 'late joiner placed in INVALID (the run ended (13 s) before its first map, due at 14 s)' in \
+        scale.scale_line(3, s)
     s = scale.summarise(run_record(joiner={'name': 'r02', 'arrival': 6.0, 'placed_end': None}))
     assert 'late joiner placed in INVALID (not placed within 7 s' in scale.scale_line(3, s)
 
