@@ -41,9 +41,13 @@ A row whose condition was not created (gmapping missing, a robot's gmapping proc
 saved no map, a peer absent or failed, a merge that failed) says INVALID and why, not a number;
 a mean over it is INVALID too.
 
-Bags and gmapping maps are cached under ``--work``, keyed by world, seed, the arguments and the
-sources that make them (the simulator's files, the gmapping config and binary): a rerun only
-merges and scores again (about a minute). It runs at nice 10 (it renices itself; whatever it starts
+Bags and gmapping maps are cached under ``--work``: the bags (``bags/WORLD-sSEED-BAGKEY``) keyed
+by world, seed, the arguments and the simulator's files; each robot's gmapping map
+(``gmapping/WORLD-sSEED-content-SHA1``) by what its bag holds (``content.json`` beside the bags:
+a digest of their messages, not of their files; ``bag_content_digest``), the robot, the gmapping
+config and binary. Bags remade alike by changed sources find the maps already made, and so do
+results of the earlier scheme, keyed by the bag key (``resolve_gmapping``: copied, never deleted).
+A rerun only merges and scores again (about a minute). It runs at nice 10 (it renices itself; whatever it starts
 inherits that), at most ``--jobs`` (2) heavy steps at a time. Everything it starts is stopped on exit, also on Ctrl-C.
 
 Writes bench/results/accuracy.{json,md,txt} (``--quick``: 1 seed, the house only, into
@@ -109,6 +113,7 @@ GMAPPING_CONFIG = os.path.join(REPO, 'config', 'gmapping_lds02.yaml')
 # the files whose code makes the bags (a change remakes them)
 SIM_SOURCES = [os.path.join(REPO, 'src', 'multi_map_merge', p) for p in
                ('lab/simulate.py', 'lab/robot_bags.py', 'lab/drives.py', 'ros/replay.py')]
+# (the gmapping maps are keyed by what the bags hold, not by these: bags remade alike keep them)
 BAG_ARGS = ['--robots', '4', '--sensors-only']
 MEXPLORE = os.path.join(SHARED, 'peers', 'mexplore')
 MRPT = os.path.join(SHARED, 'peers', 'mrpt')
@@ -471,9 +476,9 @@ GMAPPING_FILES = ('.yaml', '.pgm', '.log', '.core.log')
 
 def gmapping_dir(work: str, world: str, seed: int, content: str) -> str:
     """Where the gmapping runs on a bag of this content (its sha1, ``bag_contents``) are kept:
-    ``work``/gmapping/WORLD-sSEED-cCONTENT (12 hex digits; an old-scheme directory is named by
-    the bag key, 10 hex digits and no 'c')."""
-    return os.path.join(work, 'gmapping', '%s-s%d-c%s' % (world, seed, content[:12]))
+    ``work``/gmapping/WORLD-sSEED-content-SHA1 (its first 12 hex digits; an old-scheme directory
+    is named WORLD-sSEED-BAGKEY)."""
+    return os.path.join(work, 'gmapping', '%s-s%d-content-%s' % (world, seed, content[:12]))
 
 
 def _same_run(args: Any, doc: Dict[str, Any]) -> bool:

@@ -198,7 +198,7 @@ def test_an_old_result_belongs_to_its_bags_content(tmp_path):
                                         fake_digest(calls), log.append)
     assert meta is not None and meta['cached'] and meta['migrated_now']
     assert prefix == os.path.join(acc.gmapping_dir(str(work), 'house', 1, team), 'tb3_0')
-    assert os.path.basename(os.path.dirname(prefix)) == 'house-s1-c' + team[:12]
+    assert os.path.basename(os.path.dirname(prefix)) == 'house-s1-content-' + team[:12]
     assert meta['key'] == acc.key_of(run_doc(team)) and meta['args'] == run_doc(team)
     assert meta['map'] == prefix + '.yaml' and meta['processed'] == 294
     assert meta['migrated_from'] == {'meta': old + '.json', 'key': acc.key_of(run_doc('aaaaaaaaaa')),
