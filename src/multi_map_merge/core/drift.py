@@ -25,7 +25,9 @@ an overlap differ by what the map turned on the way there. It is read only where
 around both places hold one direction clearly (:data:`MIN_COHERENCE`; a building of many wall
 directions, or a disc of clutter, says nothing), and a measured turn adds its square to the
 turn's variance on top of the rate's: the drift model covers the unmeasured, the measurement
-the heavy tail (a long corridor drawn turned by tens of degrees).
+the heavy tail (a long corridor drawn turned by tens of degrees). Only what the two maps of a
+link turned apart counts: a building whose wings are drawn at another angle reads as the same
+turn in both maps when they start in one place.
 
 Frames: metres and radians of the parent's map frame; the link's pose ``T`` (3x3) maps the
 child's map frame into the parent's, and its covariance is that of (x, y, yaw) of ``T``, as in
@@ -65,15 +67,18 @@ def link_covariance(centre: Sequence[float], T: np.ndarray, rate: float, yaw_rat
     ``rate``: metres off per metre from a map's origin, ``yaw_rate``: radians turned per
     square root of a metre (1 sigma); ``parent_turn``, ``child_turn``: radians each map was
     measured to have turned between its origin and the overlap (:func:`turn`; None unmeasured).
-    A measured turn adds the heading error it makes (:func:`link_turn`, squared) and, in
-    position, the overlap's shift by a turn that happened anywhere on the way (a pivot uniform
-    between the origin and the overlap: ``turn^2 L^2 / 3``)."""
+    What they turned apart (:func:`link_turn`: what both read alike is the building's own
+    geometry, or a turn both made, and does not move one frame against the other) adds its
+    square to the heading and, in position, the overlap's shift by a turn that happened
+    anywhere on the longer of the two ways (a pivot uniform between the origin and the overlap:
+    ``turn^2 L^2 / 3``)."""
     c = np.asarray(centre, np.float64)
     t = np.asarray(T, np.float64)[:2, 2]
     far_parent, far_child = float(np.hypot(*c)), float(np.hypot(*(c - t)))
     var_xy = rate ** 2 * (far_parent ** 2 + far_child ** 2)
-    var_xy += ((parent_turn or 0.0) * far_parent) ** 2 / 3.0 + ((child_turn or 0.0) * far_child) ** 2 / 3.0
-    var_yaw = yaw_rate ** 2 * (far_parent + far_child) + link_turn(parent_turn, child_turn) ** 2
+    apart = link_turn(parent_turn, child_turn)
+    var_xy += (apart * max(far_parent, far_child)) ** 2 / 3.0
+    var_yaw = yaw_rate ** 2 * (far_parent + far_child) + apart ** 2
     # the overlap shifted and turned about its centre: a turn moves the child's origin sideways
     lever = t - c
     G = np.array([[1.0, 0.0, -lever[1]], [0.0, 1.0, lever[0]], [0.0, 0.0, 1.0]])

@@ -112,8 +112,9 @@ class RobotStatus:
     # bend_maps: metres the merged map moves its map's walls at most off its placement to meet
     # the others' (core/deform.py: its field's largest node move); 0 when not bent
     bent: float = 0.0
-    # its verified links across whose overlap its own map turned from its origin, as its walls
-    # show (core/drift.py): (the other robot, radians), at least drift.REPORT_TURN, largest first
+    # its verified links across whose overlap its map and the other's turned apart from their
+    # origins, as both maps' walls show (core/drift.py): (the other robot, radians: its map's
+    # turn less the other's), at least drift.REPORT_TURN, largest first
     turns: Tuple[Tuple[str, float], ...] = ()
 
 
@@ -527,8 +528,9 @@ class MapMerger:
                 bends = tuple(sorted(((b if a == n else a, e.bend) for (a, b), e in self._edges.items()
                                       if n in (a, b) and e.bend >= bend.REPORT_BEND), key=lambda x: -x[1]))
                 turns = tuple(sorted(((b if a == n else a, t) for (a, b), e in self._edges.items() if n in (a, b)
-                                      for t in [e.parent_turn if a == n else e.child_turn]
-                                      if t is not None and abs(t) >= drift.REPORT_TURN), key=lambda x: -abs(x[1])))
+                                      and e.parent_turn is not None and e.child_turn is not None
+                                      for t in [drift.link_turn(e.parent_turn, e.child_turn) * (1 if a == n else -1)]
+                                      if abs(t) >= drift.REPORT_TURN), key=lambda x: -abs(x[1])))
                 m = self._maps.get(n)
                 field = self._fields.get(n)
                 out[n] = RobotStatus(pl is not None, n == ref, pl, last, other, self._errors.get(n, ''), links,

@@ -95,9 +95,11 @@ def robot_diagnostic(robot: str, st: RobotStatus, gone: bool, now: float,
                                       for other, m in st.bends)
         kv += [('bends', ' '.join('%s:%.2f' % (other, m) for other, m in st.bends))]
     if st.turns:
-        # a note, not a level: the turn is in the placement's covariance, which sets ``weak``
-        s.message += '; ' + '; '.join("%s's map turns %.0f deg between its start and its overlap with %s"
-                                      % (robot, math.degrees(t), other) for other, t in st.turns)
+        # a note, not a level: the turn is in the placement's covariance, which sets ``weak``; the
+        # walls cannot tell a map that turned from a building whose wings do
+        s.message += '; ' + '; '.join("%s's map and %s's turn %.0f deg apart between their starts and their "
+                                      "overlap (a map turned, or the building does)" % (robot, other, math.degrees(t))
+                                      for other, t in st.turns)
         kv += [('turns (deg)', ' '.join('%s:%.1f' % (other, math.degrees(t)) for other, t in st.turns))]
     if st.bent > 0.0:
         # ~bend_maps: how far the merged map moves this map's walls off its (rigid) placement

@@ -121,6 +121,8 @@ def test_a_measured_turn_widens_the_heading_and_the_position():
     both = drift.link_covariance((4.0, 0.0), T, RATE, YAW_RATE, tp, tc)
     assert both[2, 2] == pytest.approx(base[2, 2] + (tp - tc) ** 2)
     # the overlap 4 m from the parent's origin and 6 m from the child's: shifted by a turn
-    # anywhere on the way
-    assert both[0, 0] == pytest.approx(base[0, 0] + (tp * 4.0) ** 2 / 3.0 + (tc * 6.0) ** 2 / 3.0)
+    # anywhere on the longer way
+    assert both[0, 0] == pytest.approx(base[0, 0] + ((tp - tc) * 6.0) ** 2 / 3.0)
     assert drift.link_turn(tp, None) == tp and drift.link_turn(None, None) == 0.0
+    # both maps read alike (a building's wing, or a turn both made): nothing added
+    assert np.allclose(drift.link_covariance((4.0, 0.0), T, RATE, YAW_RATE, tp, tp), base)

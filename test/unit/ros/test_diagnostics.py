@@ -296,7 +296,8 @@ def test_a_map_that_turned_on_the_way_to_an_overlap_is_named_in_the_robots_messa
     st = merged()
     st.turns = (('tb3_1', math.radians(22.0)),)
     s = robot_diagnostic('tb3_0', st, False, NOW)
-    assert s.message == "merged via tb3_0; tb3_0's map turns 22 deg between its start and its overlap with tb3_1"
+    assert s.message == ("merged via tb3_0; tb3_0's map and tb3_1's turn 22 deg apart between their starts and "
+                         "their overlap (a map turned, or the building does)")
     assert s.level == DiagnosticStatus.OK          # the turn is in the covariance, which sets weak
     assert values(s)['turns (deg)'] == 'tb3_1:22.0'
     assert 'turns (deg)' not in values(robot_diagnostic('tb3_1', merged(), False, NOW))
