@@ -19,7 +19,7 @@ link errors against the robots' true starts: docs/measurements.md); a map that d
 (a map cut from a ground truth) is covered the more loosely.
 
 Where a map's heading can be read off its walls, it is measured rather than assumed
-(:class:`WallDirections`, :func:`turn`): most buildings are drawn on two perpendicular wall
+(:func:`wall_direction`, :func:`turn`): most buildings are drawn on two perpendicular wall
 directions, so the walls' dominant direction modulo 90 degrees near the map's origin and near
 an overlap differ by what the map turned on the way there. It is read only where the walls
 around both places hold one direction clearly (:data:`MIN_COHERENCE`; a building of many wall
@@ -31,7 +31,7 @@ turn in both maps when they start in one place.
 
 Frames: metres and radians of the parent's map frame; the link's pose ``T`` (3x3) maps the
 child's map frame into the parent's, and its covariance is that of (x, y, yaw) of ``T``, as in
-:func:`covariance.metric_covariance`. :class:`WallDirections` works in a grid's cells (col, row);
+:func:`covariance.metric_covariance`. :func:`wall_direction` works in a grid's cells (col, row);
 a turn is the same in cells and metres (a grid's cells are its frame's axes, scaled).
 """
 from __future__ import annotations
@@ -85,52 +85,45 @@ def link_covariance(centre: Sequence[float], T: np.ndarray, rate: float, yaw_rat
     return G @ np.diag([var_xy, var_xy, var_yaw]) @ G.T
 
 
-class WallDirections:
-    """The walls' direction modulo 90 degrees around any place of one grid. Around a place, the
-    gradient of the (lightly smoothed) wall mask at each cell is taken as a vector at four
-    times its angle, so that walls along x and along y add up instead of cancelling; only the
-    disc's box is ever differentiated (a map holds no per-cell copy). ``levels``: a grid's levels
-    (or a crop of them, kept by reference), ``resolution``: metres per cell."""
-
-    def __init__(self, levels: np.ndarray, resolution: float):
-        self.levels = levels
-        self.radius_cells = DIRECTION_RADIUS / float(resolution)
-
-    def at(self, cell: Sequence[float]) -> Optional[float]:
-        """The walls' direction (radians, modulo 90 degrees, in [-45, 45)) within
-        :data:`DIRECTION_RADIUS` of ``cell`` ((col, row) of these levels); None where too few
-        walls lie there or they hold no one direction (:data:`MIN_COHERENCE`)."""
-        col, row = float(cell[0]), float(cell[1])
-        rc = self.radius_cells
-        h, w = self.levels.shape
-        # the disc's box and a margin for the smoothing and the gradient
-        r0, r1 = max(0, int(math.floor(row - rc)) - 3), min(h, int(math.ceil(row + rc)) + 4)
-        c0, c1 = max(0, int(math.floor(col - rc)) - 3), min(w, int(math.ceil(col + rc)) + 4)
-        if r1 - r0 < 3 or c1 - c0 < 3:
-            return None
-        walls = self.levels[r0:r1, c0:c1] == OCCUPIED
-        yy, xx = np.mgrid[r0:r1, c0:c1]
-        disc = (yy - row) ** 2 + (xx - col) ** 2 <= rc * rc
-        if int(walls[disc].sum()) < MIN_DIRECTION_CELLS:
-            return None
-        smooth = cv2.GaussianBlur(walls.astype(np.float32), (0, 0), 1.0)
-        gx = cv2.Sobel(smooth, cv2.CV_32F, 1, 0, ksize=3)[disc].astype(np.float64)
-        gy = cv2.Sobel(smooth, cv2.CV_32F, 0, 1, ksize=3)[disc].astype(np.float64)
-        strength = np.hypot(gx, gy)
-        angle4 = 4.0 * np.arctan2(gy, gx)
-        c, s = float((strength * np.cos(angle4)).sum()), float((strength * np.sin(angle4)).sum())
-        total = float(strength.sum())
-        if total <= 0.0 or math.hypot(c, s) < MIN_COHERENCE * total:
-            return None
-        return math.atan2(s, c) / 4.0
+def wall_direction(levels: np.ndarray, resolution: float, cell: Sequence[float]) -> Optional[float]:
+    """The walls' direction (radians, modulo 90 degrees, in [-45, 45)) within
+    :data:`DIRECTION_RADIUS` of ``cell`` ((col, row) of ``levels``, a grid's levels or a crop of
+    them; ``resolution`` metres per cell); None where too few walls lie there or they hold no
+    one direction (:data:`MIN_COHERENCE`). Per cell of the disc, the gradient of the (lightly
+    smoothed) wall mask is taken as a vector at four times its angle, so that walls along x and
+    along y add up instead of cancelling; only the disc's box is differentiated."""
+    col, row = float(cell[0]), float(cell[1])
+    rc = DIRECTION_RADIUS / float(resolution)
+    h, w = levels.shape
+    # the disc's box and a margin for the smoothing and the gradient
+    r0, r1 = max(0, int(math.floor(row - rc)) - 3), min(h, int(math.ceil(row + rc)) + 4)
+    c0, c1 = max(0, int(math.floor(col - rc)) - 3), min(w, int(math.ceil(col + rc)) + 4)
+    if r1 - r0 < 3 or c1 - c0 < 3:
+        return None
+    walls = levels[r0:r1, c0:c1] == OCCUPIED
+    yy, xx = np.mgrid[r0:r1, c0:c1]
+    disc = (yy - row) ** 2 + (xx - col) ** 2 <= rc * rc
+    if int(walls[disc].sum()) < MIN_DIRECTION_CELLS:
+        return None
+    smooth = cv2.GaussianBlur(walls.astype(np.float32), (0, 0), 1.0)
+    gx = cv2.Sobel(smooth, cv2.CV_32F, 1, 0, ksize=3)[disc].astype(np.float64)
+    gy = cv2.Sobel(smooth, cv2.CV_32F, 0, 1, ksize=3)[disc].astype(np.float64)
+    strength = np.hypot(gx, gy)
+    angle4 = 4.0 * np.arctan2(gy, gx)
+    c, s = float((strength * np.cos(angle4)).sum()), float((strength * np.sin(angle4)).sum())
+    total = float(strength.sum())
+    if total <= 0.0 or math.hypot(c, s) < MIN_COHERENCE * total:
+        return None
+    return math.atan2(s, c) / 4.0
 
 
-def turn(directions: WallDirections, origin_cell: Sequence[float], place_cell: Sequence[float]) -> Optional[float]:
+def turn(levels: np.ndarray, resolution: float, origin_cell: Sequence[float],
+         place_cell: Sequence[float]) -> Optional[float]:
     """How far (radians, counter-clockwise) a map turned between its frame's origin and a place,
-    both (col, row) of ``directions``' levels: the walls' direction there less the one at the
-    origin, modulo 90 degrees; None where either cannot be read or the turn is too near 45
-    degrees to tell from its opposite (:data:`MAX_TURN`)."""
-    a, b = directions.at(origin_cell), directions.at(place_cell)
+    both (col, row) of ``levels``: the walls' direction there less the one at the origin
+    (:func:`wall_direction`), modulo 90 degrees; None where either cannot be read or the turn
+    is too near 45 degrees to tell from its opposite (:data:`MAX_TURN`)."""
+    a, b = wall_direction(levels, resolution, origin_cell), wall_direction(levels, resolution, place_cell)
     if a is None or b is None:
         return None
     d = (b - a + math.pi / 4.0) % (math.pi / 2.0) - math.pi / 4.0

@@ -290,13 +290,8 @@ def _pin(config: MergeConfig, pa: PairInput, ch: PairInput, r: PairResult) -> No
     r.centre = tuple(float(v) for v in W[:2, :2] @ centre + W[:2, 2])
     # how far each map turned on the way from its origin to the overlap, where its walls tell:
     # the drift's model error measured rather than assumed (drift.py)
-    r.parent_turn = drift.turn(_directions(pa), _origin_cell(pa), p.centre)
-    r.child_turn = drift.turn(_directions(ch), _origin_cell(ch), apply(inverse(r.A), p.centre[None, :])[0])
-
-
-def _directions(p: PairInput) -> drift.WallDirections:
-    """The walls' directions of one side's crop."""
-    return drift.WallDirections(p.levels, p.resolution)
+    r.parent_turn = drift.turn(pa.levels, pa.resolution, _origin_cell(pa), p.centre)
+    r.child_turn = drift.turn(ch.levels, ch.resolution, _origin_cell(ch), apply(inverse(r.A), p.centre[None, :])[0])
 
 
 def _origin_cell(p: PairInput) -> np.ndarray:

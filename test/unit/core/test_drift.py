@@ -85,11 +85,10 @@ def turned_map():
 
 
 def test_a_maps_turn_is_read_off_its_walls(turned_map):
-    d = drift.WallDirections(turned_map, RES)
-    t = drift.turn(d, (100, 100), (500, 100))
+    t = drift.turn(turned_map, RES, (100, 100), (500, 100))
     assert t is not None and abs(math.degrees(t) - 12.0) < 1.0, t
-    assert abs(drift.turn(d, (500, 100), (100, 100)) + t) < 1e-9        # the way back turns back
-    assert abs(math.degrees(drift.turn(d, (100, 100), (120, 110)))) < 0.5   # the same rooms
+    assert abs(drift.turn(turned_map, RES, (500, 100), (100, 100)) + t) < 1e-9        # the way back turns back
+    assert abs(math.degrees(drift.turn(turned_map, RES, (100, 100), (120, 110)))) < 0.5   # the same rooms
 
 
 def test_walls_of_every_direction_or_none_say_nothing(turned_map):
@@ -99,18 +98,17 @@ def test_walls_of_every_direction_or_none_say_nothing(turned_map):
         p0 = (300 + int(70 * math.cos(a)), 500 + int(70 * math.sin(a)))
         p1 = (300 - int(70 * math.cos(a)), 500 - int(70 * math.sin(a)))
         cv2.line(levels, p0, p1, int(OCCUPIED), 1)
-    d = drift.WallDirections(levels, RES)
-    assert d.at((300, 500)) is None
-    assert drift.turn(d, (100, 100), (300, 500)) is None
-    assert d.at((300, 300)) is None                 # no walls there
-    assert d.at((-500, -500)) is None               # off the map
+    assert drift.wall_direction(levels, RES, (300, 500)) is None
+    assert drift.turn(levels, RES, (100, 100), (300, 500)) is None
+    assert drift.wall_direction(levels, RES, (300, 300)) is None                 # no walls there
+    assert drift.wall_direction(levels, RES, (-500, -500)) is None               # off the map
 
 
 def test_a_turn_near_45_degrees_is_not_told_from_its_opposite():
     levels = np.full((600, 600), FREE, np.uint8)
     rooms(levels, (100, 100), 0.0)
     rooms(levels, (500, 100), 40.0)
-    assert drift.turn(drift.WallDirections(levels, RES), (100, 100), (500, 100)) is None
+    assert drift.turn(levels, RES, (100, 100), (500, 100)) is None
 
 
 def test_a_measured_turn_widens_the_heading_and_the_position():
