@@ -21,6 +21,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import signal
 import subprocess
 import tempfile
 import time
@@ -75,6 +76,10 @@ def live_node():
     return p if os.path.exists(p) else None
 
 
+class TimedOut(RuntimeError):
+    """A :meth:`Peer.run` stopped at its time-out."""
+
+
 class Peer:
     def __init__(self, root):
         self.root = tempfile.mkdtemp(prefix='peer_', dir=root)
@@ -87,8 +92,10 @@ class Peer:
         os.chmod(w, 0o755)
         self.n = 0
 
-    def run(self, paths, reps):
-        """One merge_maps_mexplore run: (timing JSON, T.yaml report, peak RSS MB, wall s)."""
+    def run(self, paths, reps, timeout=None):
+        """One merge_maps_mexplore run: (timing JSON, T.yaml report, peak RSS MB, wall s).
+        ``timeout`` (seconds, None: none): past it the run's whole process tree is stopped and
+        :class:`TimedOut` raised."""
         import yaml
         self.n += 1
         out = os.path.join(self.root, 'run%03d' % self.n)
@@ -98,11 +105,20 @@ class Peer:
         cmd = [os.path.join(PEER, 'merge_maps_mexplore')] + list(paths) + [
             '-o', os.path.join(out, 'm.yaml'), '--transforms', os.path.join(out, 'T.yaml'), '--reps', str(reps)]
         t = time.time()
-        r = subprocess.run(cmd, capture_output=True, text=True, env=dict(ENV, PEER_WS=self.ws))
+        # a session of its own: on time-out its whole tree (the front end and mexplore_merge) is stopped
+        p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                             env=dict(ENV, PEER_WS=self.ws), start_new_session=True)
+        try:
+            stdout, stderr = p.communicate(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            os.killpg(p.pid, signal.SIGKILL)
+            p.communicate()
+            why = 'its cycle on the %d maps did not end within %.0f s: stopped' % (len(paths), timeout)
+            raise TimedOut(why) from None
         wall = time.time() - t
-        if r.returncode != 0:
-            raise RuntimeError('m-explore failed: %s' % r.stderr[-300:])
-        timing = json.loads(r.stdout.strip().splitlines()[-1])
+        if p.returncode != 0:
+            raise RuntimeError('m-explore failed: %s' % stderr[-300:])
+        timing = json.loads(stdout.strip().splitlines()[-1])
         rep = yaml.safe_load(open(os.path.join(out, 'T.yaml')))
         rss = max(int(x) for x in open(self.rss_file).read().split()) / 1024.0
         return timing, rep, rss, wall

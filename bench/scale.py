@@ -86,7 +86,6 @@ import heapq
 import json
 import math
 import os
-import signal
 import subprocess
 import sys
 import tempfile
@@ -735,34 +734,20 @@ def joiner_deadline(updates, cycles, joiner) -> Optional[float]:
 
 def run_peer(paths: List[str], truth: Dict[str, list], timeout: float = PEER_TIMEOUT) -> dict:
     """m-explore's merge_maps_mexplore once on ``paths`` (robot map files, named rNN.yaml),
-    stopped after ``timeout`` s: {'run', 'why', 'cycle_s', 'wall_s', 'placed', 'worst_err_m',
-    'scales', 'timed_out'}."""
-    import yaml
-    from peer import ENV, PEER, available
+    stopped after ``timeout`` s (bench/peer.py ``Peer.run``): {'run', 'why', 'cycle_s',
+    'wall_s', 'placed', 'worst_err_m', 'scales', 'timed_out'}."""
+    from peer import Peer, TimedOut, available
 
     from multi_map_merge.core.transforms import pose_distance, se2
     ok, why = available()
     if not ok:
         return {'run': False, 'why': why}
-    out = tempfile.mkdtemp(prefix='scale_peer_')
-    cmd = [os.path.join(PEER, 'merge_maps_mexplore')] + list(paths) + [
-        '-o', os.path.join(out, 'm.yaml'), '--transforms', os.path.join(out, 'T.yaml'), '--reps', '1']
-    t = time.monotonic()
-    # a session of its own: on time-out its whole tree (the front end and mexplore_merge) is stopped
-    p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV,
-                         start_new_session=True)
     try:
-        so, se = p.communicate(timeout=timeout)
-    except subprocess.TimeoutExpired:
-        os.killpg(p.pid, signal.SIGKILL)
-        p.communicate()
-        return {'run': False, 'timed_out': True,
-                'why': 'its cycle on the %d maps did not end within %.0f s: stopped' % (len(paths), timeout)}
-    wall = time.monotonic() - t
-    if p.returncode != 0:
-        return {'run': False, 'why': 'merge_maps_mexplore failed: %s' % se.strip()[-300:]}
-    timing = json.loads(so.strip().splitlines()[-1])
-    rep = yaml.safe_load(open(os.path.join(out, 'T.yaml')))
+        timing, rep, _, wall = Peer(tempfile.gettempdir()).run(paths, 1, timeout=timeout)
+    except TimedOut as e:
+        return {'run': False, 'timed_out': True, 'why': str(e)}
+    except RuntimeError as e:
+        return {'run': False, 'why': 'merge_maps_mexplore failed: %s' % e}
     ref = rep['reference']
     errs = {}
     for s, v in rep['maps'].items():
