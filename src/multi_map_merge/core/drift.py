@@ -67,22 +67,51 @@ def link_covariance(centre: Sequence[float], T: np.ndarray, rate: float, yaw_rat
     ``rate``: metres off per metre from a map's origin, ``yaw_rate``: radians turned per
     square root of a metre (1 sigma); ``parent_turn``, ``child_turn``: radians each map was
     measured to have turned between its origin and the overlap (:func:`turn`; None unmeasured).
-    What they turned apart (:func:`link_turn`: what both read alike is the building's own
-    geometry, or a turn both made, and does not move one frame against the other) adds its
-    square to the heading and, in position, the overlap's shift by a turn that happened
-    anywhere on the longer of the two ways (a pivot uniform between the origin and the overlap:
-    ``turn^2 L^2 / 3``)."""
+
+    Each map's way from its origin to the overlap is taken straight, of length ``L``; its
+    heading a random walk ``a(s)``. At the overlap the map is turned by ``a(L)`` and shifted
+    sideways by the integral of ``a`` (:func:`_heading_walk`), the two correlated; the link
+    inherits both, the parent's as they are, the child's undone about the overlap
+    (:func:`_stretch_jacobians`). What the two maps were measured to turn apart
+    (:func:`link_turn`: what both read alike is the building's own geometry, or a turn both
+    made, and does not move one frame against the other) adds its square to the heading and, in
+    position, the overlap's shift by a turn that happened anywhere on the longer of the two ways
+    (a pivot uniform between the origin and the overlap: ``turn^2 L^2 / 3``)."""
     c = np.asarray(centre, np.float64)
     t = np.asarray(T, np.float64)[:2, 2]
     far_parent, far_child = float(np.hypot(*c)), float(np.hypot(*(c - t)))
-    var_xy = rate ** 2 * (far_parent ** 2 + far_child ** 2)
+    J_parent, J_child = _stretch_jacobians(c, t)
+    cov = (J_parent @ _heading_walk(far_parent, yaw_rate) @ J_parent.T
+           + J_child @ _heading_walk(far_child, yaw_rate) @ J_child.T)
     apart = link_turn(parent_turn, child_turn)
-    var_xy += (apart * max(far_parent, far_child)) ** 2 / 3.0
-    var_yaw = yaw_rate ** 2 * (far_parent + far_child) + apart ** 2
-    # the overlap shifted and turned about its centre: a turn moves the child's origin sideways
+    var_xy = rate ** 2 * (far_parent ** 2 + far_child ** 2) + (apart * max(far_parent, far_child)) ** 2 / 3.0
+    # a measured turn: the overlap turned about its centre, which moves the child's origin sideways
     lever = t - c
-    G = np.array([[1.0, 0.0, -lever[1]], [0.0, 1.0, lever[0]], [0.0, 0.0, 1.0]])
-    return G @ np.diag([var_xy, var_xy, var_yaw]) @ G.T
+    G = np.array([[-lever[1]], [lever[0]], [1.0]])
+    return cov + np.diag([var_xy, var_xy, 0.0]) + apart ** 2 * (G @ G.T)
+
+
+def _heading_walk(length: float, yaw_rate: float) -> np.ndarray:
+    """The covariance (2x2) of a heading random walk's end, ``a(L)`` (radians), and of its
+    integral along the way, ``b = int_0^L a(s) ds`` (metres: the sideways shift it puts into
+    the way's end), for a walk of ``yaw_rate^2`` radians^2 per metre over ``length`` metres."""
+    q, L = yaw_rate ** 2, float(length)
+    return q * np.array([[L, L * L / 2.0], [L * L / 2.0, L ** 3 / 3.0]])
+
+
+def _stretch_jacobians(centre: np.ndarray, t: np.ndarray):
+    """How each map's (turn at the overlap, sideways shift at the overlap) moves the link's
+    (x, y, yaw) (3x2 each; see :func:`link_covariance` for the frames). The parent's overlap is
+    drawn turned about its centre and shifted across its way from (0, 0): the child, fitted onto
+    it, follows both. The child's is undone about the overlap: its origin swings about the
+    overlap's centre by the turn, less its own sideways shift, and its heading turns back."""
+    def across(v: np.ndarray) -> np.ndarray:
+        n = float(np.hypot(*v))
+        return np.array([-v[1], v[0]]) / n if n > 0 else np.zeros(2)
+    swing = np.array([-(t - centre)[1], (t - centre)[0]])         # the child's origin turned about the overlap
+    J_parent = np.array([[swing[0], across(centre)[0]], [swing[1], across(centre)[1]], [1.0, 0.0]])
+    J_child = np.array([[-swing[0], -across(centre - t)[0]], [-swing[1], -across(centre - t)[1]], [-1.0, 0.0]])
+    return J_parent, J_child
 
 
 def wall_direction(levels: np.ndarray, resolution: float, cell: Sequence[float]) -> Optional[float]:

@@ -20,13 +20,58 @@ def test_the_drift_grows_with_the_overlaps_distance_from_both_origins():
     near_parent = drift.link_covariance((1.0, 0.0), T, RATE, YAW_RATE)      # 1 m and 9 m away
     midway = drift.link_covariance((5.0, 0.0), T, RATE, YAW_RATE)           # 5 m and 5 m
     assert np.allclose(near_parent, near_parent.T) and np.all(np.linalg.eigvalsh(near_parent) > 0)
-    assert near_parent[2, 2] == midway[2, 2] == YAW_RATE ** 2 * 10.0       # heading: a random walk
-    # position: each map's stretch, and the turn about the overlap moves the child's origin sideways
-    assert near_parent[0, 0] == RATE ** 2 * (1.0 + 81.0)
-    assert near_parent[1, 1] == RATE ** 2 * 82.0 + YAW_RATE ** 2 * 10.0 * 81.0
+    assert near_parent[2, 2] == pytest.approx(YAW_RATE ** 2 * 10.0)        # heading: a random walk
+    assert midway[2, 2] == pytest.approx(YAW_RATE ** 2 * 10.0)
+    # along the ways: each map's stretch only
+    assert near_parent[0, 0] == pytest.approx(RATE ** 2 * (1.0 + 81.0))
+    # across: the parent's turn swings the child's origin about the overlap (lever 9 m) and its
+    # shift moves the overlap (q L^3 / 3, correlated); the child's turn and shift, undone about
+    # the overlap, leave what its heading did along the way (q L^3 / 3 for its 9 m)
+    q = YAW_RATE ** 2
+    parent = q * (1.0 * 81.0 + 2.0 * 9.0 * 1.0 / 2.0 + 1.0 / 3.0)
+    child = q * 729.0 / 3.0
+    assert near_parent[1, 1] == pytest.approx(RATE ** 2 * 82.0 + parent + child)
     assert midway[1, 1] < near_parent[1, 1]
     assert np.allclose(drift.link_covariance((0.0, 0.0), se2(0.0, 0.0, 0.0), RATE, YAW_RATE), 0.0)
     assert np.allclose(drift.link_covariance((3.0, 4.0), T, 0.0, 0.0), 0.0)
+
+
+def drawn_along(end, n, rng, yaw_rate, runs):
+    """``runs`` maps drawn along a straight way from (0, 0) to ``end`` (metres) in ``n`` steps,
+    their heading a random walk of ``yaw_rate`` radians per sqrt(metre): per run the heading
+    turned at the way's end (radians) and the end's drawn place (metres)."""
+    end = np.asarray(end, np.float64)
+    length = float(np.hypot(*end))
+    step = length / n
+    walk = np.cumsum(rng.normal(0.0, yaw_rate * math.sqrt(step), (runs, n)), axis=1)
+    heading = math.atan2(end[1], end[0]) + np.hstack([np.zeros((runs, 1)), walk[:, :-1]])
+    drawn_end = step * np.stack([np.cos(heading).sum(1), np.sin(heading).sum(1)], axis=1)
+    return walk[:, -1], drawn_end
+
+
+def test_the_drift_is_what_maps_drawn_with_a_heading_walk_give_a_link():
+    """Monte Carlo: two maps drawn along straight ways with heading random walks, the link
+    fitted on their drawn overlap; its error's covariance is the model's."""
+    rng = np.random.default_rng(3)
+    true = se2(12.0, -4.0, 0.7)
+    centre = np.array([6.0, 5.0])                          # the overlap, in the parent's frame
+    centre_child = (np.linalg.inv(true) @ np.r_[centre, 1.0])[:2]
+    yaw_rate, runs = math.radians(0.4), 4000
+    turn_p, end_p = drawn_along(centre, 300, rng, yaw_rate, runs)
+    turn_c, end_c = drawn_along(centre_child, 300, rng, yaw_rate, runs)
+    errors = []
+    for k in range(runs):
+        # each map draws the overlap turned about its centre and moved to its drawn end; the link
+        # maps the child's drawing onto the parent's
+        drawn_parent = se2(*end_p[k], turn_p[k]) @ se2(*(-centre), 0.0)
+        drawn_child = se2(*end_c[k], turn_c[k]) @ se2(*(-centre_child), 0.0)
+        link = drawn_parent @ true @ np.linalg.inv(drawn_child)
+        e = np.array(xyyaw(link)) - np.array(xyyaw(true))
+        errors.append(e)
+    empirical = np.cov(np.array(errors).T)
+    model = drift.link_covariance(centre, true, 0.0, yaw_rate)
+    scale = np.sqrt(np.outer(np.diag(model), np.diag(model)))
+    assert np.all(np.abs(empirical - model) / scale < 0.08), (empirical, model)
 
 
 REAL = os.path.join(DATA, 'house_gmapping_s2')
