@@ -118,6 +118,21 @@ class RobotStatus:
     turns: Tuple[Tuple[str, float], ...] = ()
 
 
+def _turns_apart(robot: str, edges: Dict[Tuple[str, str], Link]) -> Tuple[Tuple[str, float], ...]:
+    """Per verified link of ``robot`` whose two maps' turns were both read: the other robot and
+    what ``robot``'s map turned less the other's (radians), where that reaches
+    :data:`drift.REPORT_TURN`; largest first."""
+    out = []
+    for (parent, child), link in edges.items():
+        if robot not in (parent, child) or link.parent_turn is None or link.child_turn is None:
+            continue
+        apart = drift.link_turn(link.parent_turn, link.child_turn)
+        other, apart = (child, apart) if robot == parent else (parent, -apart)
+        if abs(apart) >= drift.REPORT_TURN:
+            out.append((other, apart))
+    return tuple(sorted(out, key=lambda x: -abs(x[1])))
+
+
 class MapMerger:
     """Merges N robots' occupancy grids into one (see module docstring)."""
 
@@ -527,10 +542,7 @@ class MapMerger:
                 covs = tuple((a, b, e.cov) for (a, b), e in sorted(self._edges.items()) if n in (a, b))
                 bends = tuple(sorted(((b if a == n else a, e.bend) for (a, b), e in self._edges.items()
                                       if n in (a, b) and e.bend >= bend.REPORT_BEND), key=lambda x: -x[1]))
-                turns = tuple(sorted(((b if a == n else a, t) for (a, b), e in self._edges.items() if n in (a, b)
-                                      and e.parent_turn is not None and e.child_turn is not None
-                                      for t in [drift.link_turn(e.parent_turn, e.child_turn) * (1 if a == n else -1)]
-                                      if abs(t) >= drift.REPORT_TURN), key=lambda x: -abs(x[1])))
+                turns = _turns_apart(n, self._edges)
                 m = self._maps.get(n)
                 field = self._fields.get(n)
                 out[n] = RobotStatus(pl is not None, n == ref, pl, last, other, self._errors.get(n, ''), links,

@@ -169,3 +169,20 @@ def test_a_measured_turn_widens_the_heading_and_the_position():
     assert drift.link_turn(tp, None) == tp and drift.link_turn(None, None) == 0.0
     # both maps read alike (a building's wing, or a turn both made): nothing added
     assert np.allclose(drift.link_covariance((4.0, 0.0), T, RATE, YAW_RATE, tp, tp), base)
+
+
+def test_the_status_names_what_each_robots_map_turned_against_the_others():
+    from multi_map_merge.core.links import Link
+    from multi_map_merge.core.merger import _turns_apart
+
+    def link(parent, child, parent_turn, child_turn):
+        return Link(parent, child, np.eye(3), 0.5, 0.9, 30, 60, 0.0,
+                    parent_turn=math.radians(parent_turn), child_turn=math.radians(child_turn))
+    edges = {('a', 'b'): link('a', 'b', 22.0, 0.5), ('a', 'c'): link('a', 'c', 1.0, -2.0),
+             ('b', 'c'): link('b', 'c', 3.0, -4.0),
+             ('c', 'd'): Link('c', 'd', np.eye(3), 0.5, 0.9, 30, 60, 0.0, parent_turn=0.3)}   # d's unread
+    degrees = {r: [(o, round(math.degrees(t), 1)) for o, t in _turns_apart(r, edges)] for r in 'abcd'}
+    assert degrees['a'] == [('b', 21.5)]                 # a 3 degree turn apart is under REPORT_TURN
+    assert degrees['b'] == [('a', -21.5), ('c', 7.0)]        # its own turn less the other's, largest first
+    assert degrees['c'] == [('b', -7.0)]
+    assert degrees['d'] == []
