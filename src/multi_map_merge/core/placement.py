@@ -61,10 +61,9 @@ class Placement:
     # links' covariances propagated along its chain, or combined by the pose graph; None when
     # not known (the reference, a robot at its prior, a link without one)
     cov: Optional[np.ndarray] = None
-    # weakly pinned: 2-sigma position (worst direction) over ``max_position_sigma``, or placed
-    # at its prior (no link pins it), or its covariance unknown
-    weak: bool = False
-    # why it is weakly pinned, for people ('' when it is not): set with ``weak`` (:func:`pin`)
+    # why it is weakly pinned, for people ('' when it is not; :func:`pin`): 2-sigma position
+    # (worst direction) over ``max_position_sigma``, or placed at its prior (no link pins it),
+    # or its covariance unknown
     weak_reason: str = ''
     # 3x3 pose its chain of links gives (T before the pose graph moved it): what
     # :func:`chain_holds` checks the links against later
@@ -72,6 +71,11 @@ class Placement:
     # 3x3 pose the links gave (chain or pose graph) before the joint refinement moved T
     # (:mod:`joint`): the centre of its search window; None when not refined
     graph_T: Optional[np.ndarray] = None
+
+    @property
+    def weak(self) -> bool:
+        """Weakly pinned: there is a :attr:`weak_reason`."""
+        return bool(self.weak_reason)
 
 
 def widest_paths(edges: Links, names: Iterable[str], ref: str) -> Dict[str, Placement]:
@@ -185,11 +189,10 @@ def pin(config: MergeConfig, placements: Dict[str, Placement], edges: Links, ref
                                  drift_covs(config, edges, links))
     for n, p in placements.items():
         if n == ref:
-            p.cov, p.weak, p.weak_reason = None, False, ''
+            p.cov, p.weak_reason = None, ''
             continue
         p.cov = covs.get(n)
         p.weak_reason = weak_reason(p, config.max_position_sigma)
-        p.weak = bool(p.weak_reason)
 
 
 def weak_reason(p: Placement, max_position_sigma: float) -> str:
@@ -215,7 +218,7 @@ def add_priors(config: MergeConfig, best: Dict[str, Placement], names: Iterable[
         for n in names:
             if n not in best and n in priors:
                 T = inverse(se2(*priors[ref])) @ se2(*priors[n])
-                best[n] = Placement(T, 0.0, 0.0, 0, PRIOR, (ref, n), time.time(), weak=True,
+                best[n] = Placement(T, 0.0, 0.0, 0, PRIOR, (ref, n), time.time(),
                                     weak_reason=AT_PRIOR)
 
 

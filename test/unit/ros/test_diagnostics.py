@@ -188,7 +188,7 @@ def test_node_warns_naming_the_weakly_pinned_robots():
     s = node_diagnostic(st, {}, 0.3, None, 3, 3)
     assert (s.level, s.message) == (DiagnosticStatus.WARN, 'weakly pinned: b')
     assert (values(s)['weakly_pinned'], values(s)['not_merged']) == ('b', '-')
-    st['b'].placement.weak = False
+    st['b'].placement.weak_reason = ''
     s = node_diagnostic(st, {}, 0.3, None, 3, 3)
     assert s.level == DiagnosticStatus.OK and values(s)['weakly_pinned'] == '-'
 

@@ -82,9 +82,10 @@ def test_a_2_sigma_ellipse_per_robot_with_a_covariance():
     cov1[:2, :2], cov1[2, 2] = cov_xy, 1e-5
     cov2 = np.diag([0.004 ** 2, 0.01 ** 2, 1e-6])                # major axis along y
     placed = dict(PLACED)
-    placed['tb3_1'] = Placement(PLACED['tb3_1'].T, 0.4, 0.95, 30, 'tb3_0', ('tb3_0', 'tb3_1'), 0.0, cov=cov1, weak=True)
+    placed['tb3_1'] = Placement(PLACED['tb3_1'].T, 0.4, 0.95, 30, 'tb3_0', ('tb3_0', 'tb3_1'), 0.0, cov=cov1,
+                                weak_reason='2-sigma 0.9 m > max_position_sigma 0.5 m')
     placed['tb3_2'] = Placement(PLACED['tb3_2'].T, 0.4, 0.95, 30, 'tb3_1', ('tb3_0', 'tb3_1', 'tb3_2'), 0.0,
-                                cov=cov2, weak=False)
+                                cov=cov2)
     ns = by_ns(markers_msg(placed, LINKS, 'map', 0, 0.8))
     ellipses = {m.id: m for m in ns['robot_ellipses']}
     assert sorted(ellipses) == [1, 2]                           # ids: the robots' ranks; tb3_0 has none
