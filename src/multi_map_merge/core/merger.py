@@ -146,7 +146,7 @@ class MapMerger:
         self._reference_fixed = bool(c.reference_robot)   # decide_reference: settled for good
         self._reference_why = REF_PARAMETER if c.reference_robot else REF_FIRST_BY_NAME
         self._workers = PairWorkers(c)   # crops and features of the maps, the worker pool
-        self._edges: Dict[Tuple[str, str], Link] = {}
+        self._links: Dict[Tuple[str, str], Link] = {}
         self._tried: Dict[Tuple[str, str], Tuple[int, int]] = {}
         self._results: Dict[Tuple[str, str], PairResult] = {}
         self._placements: Dict[str, Placement] = {}
@@ -257,15 +257,15 @@ class MapMerger:
         # an estimation cycle under way still holds the maps of the robot's former life: what
         # it derives from them must not come back (see _from_former_life_locked)
         self._lives[name] = self._lives.get(name, 0) + 1
-        had = name in self._placements or any(name in k for k in self._edges)
+        had = name in self._placements or any(name in k for k in self._links)
         if name == self._reference:
             # Every placement is a pose in the reference's frame, which just moved.
             self._placements.clear()
             self._patches.clear()
         self._placements.pop(name, None)
         self._patches.pop(name, None)
-        for k in [k for k in self._edges if name in k]:
-            del self._edges[k]
+        for k in [k for k in self._links if name in k]:
+            del self._links[k]
         for k in [k for k in self._restored if name in k]:
             del self._restored[k]
         if had:
@@ -310,13 +310,13 @@ class MapMerger:
             for k in [k for k in self._tried if name in k]:
                 del self._tried[k]
             tol_d, tol_a = self.config.initial_pose_tolerance
-            for k, e in list(self._edges.items()):
+            for k, e in list(self._links.items()):
                 P = relative_pose(priors, e.parent, e.child)
                 if name not in k or P is None:
                     continue
                 d, a = pose_distance(e.T, P)
                 if d > tol_d or a > tol_a:
-                    del self._edges[k]
+                    del self._links[k]
                     events.append('link %s -> %s dropped: it contradicts the new prior of %s by %.2f m, '
                                   '%.1f deg' % (e.parent, e.child, name, d, math.degrees(a)))
             for n in [n for n, pl in self._placements.items() if pl.via == placement.PRIOR]:
@@ -416,7 +416,7 @@ class MapMerger:
     def reset(self) -> None:
         """Forget every transform (maps are kept)."""
         with self._lock:
-            self._edges.clear()
+            self._links.clear()
             self._tried.clear()
             self._results.clear()
             self._placements.clear()
@@ -468,7 +468,7 @@ class MapMerger:
         other (:mod:`corroborate`); returns their events (none: nothing changed)."""
         with self._lock:
             results = {k: r for k, r in self._results.items()
-                       if k not in self._edges and k[0] in maps and k[1] in maps}
+                       if k not in self._links and k[0] in maps and k[1] in maps}
             placed = {n: p.T for n, p in self._placements.items()}
         poses = corroborate.poses_of(results, lambda k, r: image_to_pose(
             r.A, maps[k[0]].grid.resolution, maps[k[0]].grid.origin, maps[k[1]].grid.resolution,
@@ -514,7 +514,7 @@ class MapMerger:
         """The verified links kept, per pair (parent, child): what the placements are made of
         (a :class:`Link` maps metres of the child's frame to the parent's)."""
         with self._lock:
-            return dict(self._edges)
+            return dict(self._links)
 
     def pair_results(self) -> Dict[Tuple[str, str], PairResult]:
         """The last result of every pair aligned, per pair (parent, child): accepted or not,
@@ -538,11 +538,11 @@ class MapMerger:
                     if n in (a, b) and (last is None or e.stamp > last.stamp):
                         last, other = e, (b if a == n else a)
                 pl = self._placements.get(n)
-                links = tuple(sorted({b if a == n else a for (a, b) in self._edges if n in (a, b)}))
-                covs = tuple((a, b, e.cov) for (a, b), e in sorted(self._edges.items()) if n in (a, b))
-                bends = tuple(sorted(((b if a == n else a, e.bend) for (a, b), e in self._edges.items()
+                links = tuple(sorted({b if a == n else a for (a, b) in self._links if n in (a, b)}))
+                covs = tuple((a, b, e.cov) for (a, b), e in sorted(self._links.items()) if n in (a, b))
+                bends = tuple(sorted(((b if a == n else a, e.bend) for (a, b), e in self._links.items()
                                       if n in (a, b) and e.bend >= bend.REPORT_BEND), key=lambda x: -x[1]))
-                turns = _turns_apart(n, self._edges)
+                turns = _turns_apart(n, self._links)
                 m = self._maps.get(n)
                 field = self._fields.get(n)
                 out[n] = RobotStatus(pl is not None, n == ref, pl, last, other, self._errors.get(n, ''), links,
@@ -554,7 +554,7 @@ class MapMerger:
         """Verified links and placements as plain data: what the state file holds
         (:mod:`state`)."""
         with self._lock:
-            edges = [link_dict(e) for e in self._edges.values()]
+            edges = [link_dict(e) for e in self._links.values()]
             placements = {n: placement_dict(p) for n, p in self._placements.items()}
             return {'reference': self._reference_locked(), 'edges': edges, 'placements': placements}
 
@@ -587,9 +587,9 @@ class MapMerger:
             ok = ov >= c.min_overlap_cells and ag >= c.min_agreement
             with self._lock:
                 self._restored.pop(key, None)
-                if ok and key not in self._edges:
+                if ok and key not in self._links:
                     e.agreement = ag
-                    self._edges[key] = e
+                    self._links[key] = e
                     self.state_version += 1
             events.append('restored link %s -> %s %s (agreement %.3f, overlap %d cells)'
                           % (key[0], key[1], 'verified' if ok else 'REJECTED', ag, ov))
@@ -632,7 +632,7 @@ class MapMerger:
                 return               # a map restarted (or robot removed) since the cycle began
             self._tried[key] = (pa.version, ch.version)
             self._results[key] = r
-            old = self._edges.get(key)
+            old = self._links.get(key)
         if not r.accepted:
             return
         T = image_to_pose(r.A, pa.grid.resolution, pa.grid.origin, ch.grid.resolution, ch.grid.origin)
@@ -642,9 +642,9 @@ class MapMerger:
             return
         inlier_ratio, inliers = kept
         with self._lock:
-            if self._edges.get(key) is not old:
+            if self._links.get(key) is not old:
                 return               # forgotten (reset, map restart) meanwhile
-            self._edges[key] = Link(pa.name, ch.name, T, inlier_ratio, r.agreement, inliers, r.matches,
+            self._links[key] = Link(pa.name, ch.name, T, inlier_ratio, r.agreement, inliers, r.matches,
                                     time.time(), r.overlap, r.cov, r.bend, r.centre, r.parent_turn, r.child_turn)
             self.state_version += 1
 
@@ -658,7 +658,7 @@ class MapMerger:
         robot, the best placement seen; returns the events (merged, improved)."""
         c = self.config
         with self._lock:
-            edges = dict(self._edges)
+            edges = dict(self._links)
             old = dict(self._placements)
         # the chain whose weakest link is most reliable, from the reference
         best = placement.widest_paths(edges, maps, ref)

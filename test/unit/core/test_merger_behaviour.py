@@ -173,7 +173,7 @@ def test_early_look_alike_is_replaced_despite_its_higher_inlier_ratio(ps, pose_g
     wrong = truth(ps[0][1], ps[1][1]) @ se2(1.2, 0.0, 0.0)   # 1.2 m along, as on a corridor
     # The look-alike is planted as the kept link: no public way leads there on these maps (a
     # saved link is verified again before use, and this one agrees 0.24 on the grids).
-    m._edges[('a', 'b')] = Link('a', 'b', wrong, 1.0, 0.99, 40, 40, 0.0, 1000)
+    m._links[('a', 'b')] = Link('a', 'b', wrong, 1.0, 0.99, 40, 40, 0.0, 1000)
     m.estimate()                        # ... then the look-alike is kept (maps unchanged) ...
     assert pose_error(m.placements()['b'].T, wrong)[0] < 0.35
     for n in 'ab':                      # new map versions (the same levels): the rule alone acts
