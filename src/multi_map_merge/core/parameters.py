@@ -574,6 +574,14 @@ MERGER_ROWS = (
           ("estimation worker processes (forked at the node's start, sharing its memory); 0 = one per core, "
            'and small problems (maps whose known parts hold under 400,000 cells in all) estimated in the '
            "node's own process; 1 = always in the node's own process; 2 or more = that many, always used")),
+        _P('dask_scheduler', '', _string(False), '',
+          ("a Dask scheduler's address (e.g. tcp://host:8786) to align the pairs on its workers; "
+           '"" = the local workers'),
+          ("a Dask scheduler's address (e.g. `tcp://host:8786`): the pairs are aligned on its cluster's workers"
+           ' (which need this package, OpenCV and numpy of the same versions on their PYTHONPATH), with the same'
+           ' results as here. Needs `python3-distributed` only when set. A cluster that fails (unreachable, '
+           'scheduler or all workers lost) is left for the local workers (`~workers`) with one log line, the '
+           "cycle's pairs done again here; it is tried again after 60 s. Empty = the local workers only")),
     ),
 )
 

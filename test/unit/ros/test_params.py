@@ -274,7 +274,7 @@ def test_every_parameter_refuses_values_of_no_use_with_one_error_naming_it(name,
     """Each parameter resolve_params reads, given a value of the wrong type (None, as an empty
     YAML entry gives it; a mapping; a nested list) or an empty string where it needs one: one
     error naming it, and the default. Strings that may be empty (''= none/default) are taken."""
-    may_be_empty = {'map_updates_topic', 'reference_robot', 'state_file', 'robots'}
+    may_be_empty = {'map_updates_topic', 'reference_robot', 'state_file', 'robots', 'dask_scheduler'}
     res = resolve_params({name: value})
     if isinstance(value, str) and name in may_be_empty:
         assert not res.errors, res.errors
