@@ -49,7 +49,9 @@ class PairWorkers:
 
     def __init__(self, config: MergeConfig):
         self.config = config
-        self.uid = '%d-%d' % (os.getpid(), next(_MERGERS))   # names its maps in worker caches
+        # names its maps in worker caches; unique across machines too (a Dask cluster's workers
+        # serve the mergers of several machines, whose process ids may be the same)
+        self.uid = '%d-%d-%s' % (os.getpid(), next(_MERGERS), os.urandom(4).hex())
         self._features: Dict[str, Tuple[tuple, Features]] = {}   # in the crops' cells
         self._crops: Dict[str, Tuple[tuple, np.ndarray, Tuple[int, int]]] = {}
 
@@ -114,20 +116,34 @@ class PairWorkers:
         the first pair would leave a worker idle while the slowest map is described.
 
         A worker that died (killed, e.g. by the kernel's OOM killer) breaks the pool: this
-        cycle raises ``BrokenProcessPool``, and the next one starts a new pool."""
+        cycle raises ``BrokenProcessPool``, and the next one starts a new pool.
+
+        With ``dask_scheduler`` set the pool is that Dask cluster's (:mod:`runtime.cluster`):
+        the same jobs, the same results. A cluster that fails (unreachable, its scheduler or
+        every worker lost) is left for the local pool, which does this cycle's pairs again:
+        the merge completes, with one log line."""
+        address = self.config.dask_scheduler
+        if address and todo:
+            # a Dask cluster (runtime/cluster.py); when it fails, the local pool does the cycle again
+            from ..runtime import cluster
+            try:
+                pool = cluster.pool(address)
+                if pool is not None:
+                    return self._align_pairs(maps, todo, pool)
+            except cluster.failure_types() as e:
+                cluster.lost(address, e)
         try:
-            return self._align_pairs(maps, todo)
+            return self._align_pairs(maps, todo, self.pool_for(maps))
         except BrokenProcessPool:
             _discard_pool()
             raise
 
-    def _align_pairs(self, maps: Dict[str, RobotMap], todo: List[Tuple[str, str]]) -> List[PairResult]:
+    def _align_pairs(self, maps: Dict[str, RobotMap], todo: List[Tuple[str, str]], pool) -> List[PairResult]:
         c = self.config
         seeds = {ab: zlib.crc32(('%s|%s' % ab).encode()) for ab in todo}
         stale = self._stale(maps)
         # the biggest maps first: the last task to start should be a short one
         stale.sort(key=lambda m: -m.grid.width * m.grid.height)
-        pool = self.pool_for(maps)
         if pool is None or not stale:
             self._features_all(maps, pool)
             inputs = {n: self.input(maps[n]) for n in {x for ab in todo for x in ab}}

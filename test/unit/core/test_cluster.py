@@ -1,0 +1,216 @@
+"""The pair work on a Dask cluster (``dask_scheduler``, :mod:`multi_map_merge.runtime.cluster`):
+a real scheduler and two real workers started here on 127.0.0.1, the merge the same as the local
+pool's, and a lost worker, a lost scheduler or an unreachable one leaving the work to the local
+pool with one log line."""
+from __future__ import annotations
+
+import json
+import logging
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+from conftest import merged
+
+distributed = pytest.importorskip(
+    'distributed', reason='dask.distributed is not installed (optional: only for ~dask_scheduler; '
+                          'Debian/Ubuntu python3-distributed)')
+
+from multi_map_merge.runtime import cluster  # noqa: E402
+
+SRC = os.path.abspath(os.path.join(os.path.dirname(os.path.abspath(__file__)), '..', '..', '..', 'src'))
+CONFIG = dict(reference_robot='a', map_drift=0.0, map_drift_yaw=0.0)
+LOGGER = cluster.__name__
+
+
+@pytest.fixture(scope='module')
+def pieces(intel):
+    """Two overlapping parts of the Intel lab (b turned and moved) and a corner too small to
+    place: the maps of ``halves_merged``."""
+    from multi_map_merge.core.grid import known_bbox
+    from multi_map_merge.lab.pieces import cut_piece
+    r0, r1, c0, c1 = known_bbox(intel.levels())
+    return {'a': cut_piece(intel, (r0, r1, c0, c0 + int(0.6 * (c1 - c0))), (0, 0, 0))[0],
+            'b': cut_piece(intel, (r0, r1, c0 + int(0.4 * (c1 - c0)), c1), (3, -2, 2.0))[0],
+            'c': cut_piece(intel, (r0, r0 + 40, c0, c0 + 40), (1, 1, 1.0))[0]}
+
+
+@pytest.fixture(scope='module')
+def local(pieces):
+    """The merge in this process (``workers: 1``): what the cluster must give."""
+    return merged(pieces, workers=1, **CONFIG)
+
+
+class Cluster:
+    """A scheduler and workers, each a process of its own (its own process group)."""
+
+    def __init__(self, tmp):
+        self.tmp = tmp
+        self.env = dict(os.environ, PYTHONPATH=SRC + os.pathsep + os.environ.get('PYTHONPATH', ''))
+        self.scheduler = None
+        self.workers = []
+        self.address = None
+
+    def _start(self, *args):
+        return subprocess.Popen([sys.executable, '-m'] + list(args), env=self.env, cwd=str(self.tmp),
+                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+
+    def start(self, n_workers=2, deadline_s=60.0):
+        f = self.tmp / 'scheduler.json'
+        self.scheduler = self._start('distributed.cli.dask_scheduler', '--host', '127.0.0.1', '--port', '0',
+                                     '--scheduler-file', str(f), '--no-dashboard',
+                                     '--dashboard-address', '127.0.0.1:0')
+        end = time.monotonic() + deadline_s
+        while not (f.exists() and f.stat().st_size):
+            assert self.scheduler.poll() is None and time.monotonic() < end, 'the scheduler did not start'
+            time.sleep(0.1)
+        self.address = json.loads(f.read_text())['address']
+        for i in range(n_workers):
+            self.workers.append(self._start('distributed.cli.dask_worker', self.address, '--nthreads', '1',
+                                            '--no-nanny', '--memory-limit', '0', '--no-dashboard',
+                                            '--local-directory', str(self.tmp / ('w%d' % i)),
+                                            '--death-timeout', '10'))
+        with distributed.Client(self.address, timeout=10, set_as_default=False) as c:
+            while len(c.nthreads()) < n_workers:
+                assert time.monotonic() < end, 'the workers did not start'
+                time.sleep(0.1)
+        return self
+
+    @staticmethod
+    def kill(p):
+        if p is not None and p.poll() is None:
+            os.killpg(p.pid, signal.SIGKILL)
+        if p is not None:
+            p.wait(timeout=10)
+
+    def stop(self):
+        for p in self.workers + [self.scheduler]:
+            self.kill(p)
+
+
+def _forget_cluster():
+    """This process's client closed and no retry time left over from another test."""
+    if cluster._POOL is not None:
+        cluster._POOL.close()
+    cluster._POOL = None
+    cluster._RETRY_AT.clear()
+
+
+@pytest.fixture
+def dask_cluster(tmp_path):
+    c = Cluster(tmp_path)
+    _forget_cluster()
+    try:
+        yield c.start()
+    finally:
+        _forget_cluster()
+        c.stop()
+
+
+def assert_same(m, ref):
+    """The same placements (every T) and the same merged grid."""
+    a, b = m.placements(), ref.placements()
+    assert sorted(a) == sorted(b)
+    for n in a:
+        assert np.array_equal(a[n].T, b[n].T), n
+    ga, gb = m.compose(), ref.compose()
+    assert np.array_equal(ga.data, gb.data) and ga.resolution == gb.resolution
+    assert np.array_equal(np.asarray(ga.origin), np.asarray(gb.origin))
+
+
+def fallback_lines(caplog):
+    """Our lines; and no other line of warning or above (``distributed``'s own are silenced)."""
+    others = [r.getMessage() for r in caplog.records if r.name != LOGGER and r.levelno >= logging.WARNING]
+    assert not others, others
+    return [r for r in caplog.records if r.name == LOGGER]
+
+
+def test_the_cluster_merges_as_the_local_pool_does(dask_cluster, pieces, local, caplog):
+    caplog.set_level(logging.WARNING)
+    m = merged(pieces, dask_scheduler=dask_cluster.address, **CONFIG)
+    assert cluster._POOL is not None and cluster._POOL.running() and cluster._POOL.finished >= 3
+    assert not fallback_lines(caplog)
+    assert sorted(m.placements()) == ['a', 'b']
+    assert_same(m, local)
+
+
+def test_a_worker_lost_before_the_cycle_leaves_the_work_to_the_other(dask_cluster, pieces, local, caplog):
+    caplog.set_level(logging.WARNING)
+    Cluster.kill(dask_cluster.workers[0])
+    m = merged(pieces, dask_scheduler=dask_cluster.address, **CONFIG)
+    assert not fallback_lines(caplog)
+    assert cluster._POOL is not None and cluster._POOL.running() and cluster._POOL.finished >= 3
+    assert_same(m, local)
+
+
+def test_a_lost_scheduler_leaves_the_cycle_to_the_local_pool_with_one_line(dask_cluster, pieces, local, caplog):
+    caplog.set_level(logging.WARNING)
+    assert cluster.pool(dask_cluster.address).running()   # connected
+    Cluster.kill(dask_cluster.scheduler)
+    t0 = time.monotonic()
+    m = merged(pieces, dask_scheduler=dask_cluster.address, **CONFIG)
+    assert time.monotonic() - t0 < 30
+    lines = fallback_lines(caplog)
+    assert len(lines) == 1 and 'tried again in 60 s' in lines[0].getMessage(), [r.getMessage() for r in lines]
+    assert_same(m, local)
+    # the next cycle does not try the cluster again (for 60 s): no second line, no delay
+    t0 = time.monotonic()
+    merged(pieces, dask_scheduler=dask_cluster.address, **CONFIG)
+    assert len(fallback_lines(caplog)) == 1 and time.monotonic() - t0 < 10
+
+
+def test_an_unreachable_scheduler_falls_back_within_seconds_with_one_line(pieces, local, caplog):
+    caplog.set_level(logging.WARNING)
+    _forget_cluster()
+    try:
+        t0 = time.monotonic()
+        m = merged(pieces, dask_scheduler='tcp://127.0.0.1:1', **CONFIG)
+        assert time.monotonic() - t0 < cluster.CONNECT_TIMEOUT_S + 10
+        lines = fallback_lines(caplog)
+        assert len(lines) == 1 and 'tcp://127.0.0.1:1' in lines[0].getMessage()
+        assert_same(m, local)
+    finally:
+        _forget_cluster()
+
+
+# -- the pool itself, mid-cycle: tasks that wait (time.sleep: importable on the workers), and a
+#    process killed meanwhile
+
+
+def test_a_worker_killed_mid_task_its_task_is_done_by_the_other(dask_cluster):
+    p = cluster.pool(dask_cluster.address)
+    futures = [p.submit(time.sleep, 1.5) for _ in range(2)]    # one on each worker
+    time.sleep(0.5)
+    Cluster.kill(dask_cluster.workers[0])
+    assert [f.result(timeout=30) for f in futures] == [None, None]
+    assert p.running()
+
+
+def test_the_scheduler_killed_mid_task_fails_the_tasks_at_once(dask_cluster):
+    p = cluster.pool(dask_cluster.address)
+    futures = [p.submit(time.sleep, 30) for _ in range(2)]
+    time.sleep(0.5)
+    t0 = time.monotonic()
+    Cluster.kill(dask_cluster.scheduler)
+    for f in futures:
+        with pytest.raises(cluster.ClusterLost):
+            f.result(timeout=30)
+    assert time.monotonic() - t0 < 10 and not p.running()
+
+
+def test_every_worker_killed_mid_task_fails_the_tasks_within_seconds(dask_cluster):
+    """(dask itself would wait for a worker for ever)"""
+    p = cluster.pool(dask_cluster.address)
+    futures = [p.submit(time.sleep, 30) for _ in range(2)]
+    time.sleep(0.5)
+    t0 = time.monotonic()
+    for w in dask_cluster.workers:
+        Cluster.kill(w)
+    for f in futures:
+        with pytest.raises(cluster.ClusterLost, match='no worker'):
+            f.result(timeout=30)
+    assert time.monotonic() - t0 < cluster.NO_WORKERS_S + 10
