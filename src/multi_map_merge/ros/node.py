@@ -9,6 +9,7 @@ and the node's state (:mod:`health`, :mod:`updater`), the watch on the set-up
 (:mod:`setup_watch`) and what is read before ``rospy.init_node`` (:mod:`before_init`)."""
 from __future__ import annotations
 
+import logging
 import sys
 import threading
 import time
@@ -34,6 +35,25 @@ from .prior_inputs import PriorInputs
 from .setup_watch import SetupWatch
 
 __all__ = ['MergeNode', 'NODE_NAME', 'load_config', 'load_params', 'run_merge_node', 'workers_before_init']
+
+
+class _ToRosout(logging.Handler):
+    """The core's and the runtime's log lines (Python ``logging``, e.g. a Dask cluster left for
+    the local workers: ``runtime/cluster.py``) on /rosout and the screen: rospy's logging
+    configuration gives loggers other than its own only the node's log file."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        log = (rospy.logerr if record.levelno >= logging.ERROR else
+               rospy.logwarn if record.levelno >= logging.WARNING else rospy.loginfo)
+        log('%s', record.getMessage())
+
+
+def log_to_rosout() -> None:
+    """The package's Python log lines (warnings and above) to /rosout, not only to the log file."""
+    logger = logging.getLogger(__name__.split('.')[0])
+    if not any(isinstance(h, _ToRosout) for h in logger.handlers):
+        logger.addHandler(_ToRosout(logging.WARNING))
+        logger.propagate = False    # (rospy's own lines reach the log file through rosout)
 
 
 def load_config() -> MergeConfig:
@@ -317,6 +337,7 @@ def run_merge_node(argv: Optional[List[str]] = None) -> None:
     # memory (core/workers.py)
     start_pool(workers_before_init())
     rospy.init_node(NODE_NAME)
+    log_to_rosout()
     res = load_params()
     MergeNode(res.config, res.library['diagnostic_period'], res.library_given.get('diagnostic_period', 1.0))
     rospy.spin()

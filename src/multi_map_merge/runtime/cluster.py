@@ -24,6 +24,7 @@ import concurrent.futures as cf
 import logging
 import threading
 import time
+import warnings
 from typing import Optional
 
 log = logging.getLogger(__name__)
@@ -124,11 +125,14 @@ class ClusterPool:
     def __init__(self, address: str):
         self.address = address
         try:
+            import dask
             import distributed
         except ImportError as e:
             raise ClusterLost('python3-distributed is not installed (%s)' % e) from None
         _quiet_distributed()
-        import dask
+        # a big map's crop is sent with each of its pairs (not scattered ahead): distributed
+        # advises scattering once, on stderr; the maps change between cycles anyway
+        warnings.filterwarnings('ignore', message='Large object of size', category=UserWarning)
         # the scheduler's answers (the watchdog's questions) within the same time as connecting
         dask.config.set({'distributed.comm.timeouts.connect': '%gs' % CONNECT_TIMEOUT_S})
         try:

@@ -28,8 +28,10 @@ MODULE_KEYS = {
     'rviz': 'rviz', 'python_qt_binding': 'python_qt_binding', 'paramiko': 'python3-paramiko',
     'actionlib': 'actionlib', 'actionlib_msgs': 'actionlib_msgs', 'move_base_msgs': 'move_base_msgs',
 }
-# optional: imported only where ImportError is handled, and deliberately not declared
-OPTIONAL = {'open3d': 'python3-open3d-pip'}
+# optional: imported only where ImportError is handled, and deliberately not declared. Dask
+# (only with ~dask_scheduler set, runtime/cluster.py) has no rosdep key: Debian and Ubuntu's
+# python3-distributed (and its python3-dask), or pip
+OPTIONAL = {'open3d': 'python3-open3d-pip', 'distributed': 'python3-distributed', 'dask': 'python3-dask'}
 ENV = {'ROS_PYTHON_VERSION': '3', 'ROS_DISTRO': 'noetic'}     # what rosdep sees on Noetic
 # ... and on a robot (README: MULTI_MAP_MERGE_SIDE=robot rosdep install ...)
 ROBOT_ENV = dict(ENV, MULTI_MAP_MERGE_SIDE='robot')
@@ -186,9 +188,11 @@ def test_every_import_of_the_tests_is_declared():
     assert not missing, 'imported by tests but neither an exec_depend nor a test_depend: %s' % missing
 
 
-def test_open3d_is_optional_and_guarded():
-    """Ubuntu 20.04 has no Open3D package (rosdep: only python3-open3d-pip): it is imported only
-    under an ImportError handler (evaluation says what to install) and not declared."""
+def test_open3d_and_dask_are_optional_and_guarded():
+    """Ubuntu 20.04 has no Open3D package (rosdep: only python3-open3d-pip), and rosdep has no
+    key for Dask: each is imported only under an ImportError handler (evaluation says what to
+    install; a cluster that cannot be used leaves the work to the local workers) and not
+    declared."""
     deps = declared()
     everything = set().union(*deps.values())
     for mod, key in OPTIONAL.items():
