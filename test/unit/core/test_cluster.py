@@ -163,6 +163,52 @@ def test_a_lost_scheduler_leaves_the_cycle_to_the_local_pool_with_one_line(dask_
     assert len(fallback_lines(caplog)) == 1 and time.monotonic() - t0 < 10
 
 
+def test_no_worker_left_leaves_the_cycle_to_the_local_pool_within_seconds(dask_cluster, pieces, local, caplog):
+    """(dask itself would wait for a worker for ever)"""
+    caplog.set_level(logging.WARNING)
+    assert cluster.pool(dask_cluster.address).running()   # connected
+    for w in dask_cluster.workers:
+        Cluster.kill(w)
+    t0 = time.monotonic()
+    m = merged(pieces, dask_scheduler=dask_cluster.address, **CONFIG)
+    assert time.monotonic() - t0 < cluster.NO_WORKERS_S + 10
+    lines = fallback_lines(caplog)
+    assert len(lines) == 1 and 'no worker' in lines[0].getMessage(), [r.getMessage() for r in lines]
+    assert_same(m, local)
+
+
+def test_without_distributed_the_local_pool_merges_with_one_line(pieces, local, caplog, monkeypatch):
+    caplog.set_level(logging.WARNING)
+    _forget_cluster()
+    monkeypatch.setitem(sys.modules, 'distributed', None)    # import distributed: ImportError
+    try:
+        m = merged(pieces, dask_scheduler='tcp://127.0.0.1:8786', **CONFIG)
+        lines = fallback_lines(caplog)
+        assert len(lines) == 1 and 'python3-distributed is not installed' in lines[0].getMessage()
+        assert_same(m, local)
+    finally:
+        _forget_cluster()
+
+
+def test_distributed_is_imported_only_when_a_scheduler_is_given(pieces):
+    """Robots and users without a cluster do not need it (a fresh interpreter: this one has it)."""
+    script = ('import sys\n'
+              'from multi_map_merge.core.config import MergeConfig\n'
+              'from multi_map_merge.core.merger import MapMerger\n'
+              'from multi_map_merge.core.mapio import load_map\n'
+              'm = MapMerger(MergeConfig(workers=1))\n'
+              'for n in "ab":\n'
+              '    m.update_map(n, load_map(sys.argv[1]))\n'
+              'm.estimate()\n'
+              'print(sorted(k for k in sys.modules if k.split(".")[0] in ("dask", "distributed")))\n')
+    env = dict(os.environ, PYTHONPATH=SRC + os.pathsep + os.environ.get('PYTHONPATH', ''))
+    yaml = os.path.join(os.path.dirname(SRC), 'test', 'data', 'aws_small_house.yaml')
+    out = subprocess.run([sys.executable, '-c', script, yaml], capture_output=True, text=True, env=env,
+                         timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip().splitlines()[-1] == '[]'
+
+
 def test_an_unreachable_scheduler_falls_back_within_seconds_with_one_line(pieces, local, caplog):
     caplog.set_level(logging.WARNING)
     _forget_cluster()
