@@ -74,14 +74,18 @@ def lost(address: str, reason: BaseException) -> None:
     with _LOCK:
         _RETRY_AT[address] = time.monotonic() + RETRY_S
         p, _POOL = _POOL, None
-    if p is not None and p.address == address:
+    if p is not None:
         p.close()
     log.warning('multi_map_merge: the Dask cluster at %s failed (%s): this cycle\'s pairs are done by the '
                 'local workers, and the cluster is tried again in %.0f s', address, _reason(reason), RETRY_S)
 
 
 def _reason(e: BaseException) -> str:
+    """An exception in a few words: its type and its message's first line (only the message
+    of :class:`ClusterLost`, which says it all)."""
     text = str(e).strip().splitlines()[0] if str(e).strip() else ''
+    if isinstance(e, ClusterLost):
+        return text
     return '%s: %s' % (type(e).__name__, text) if text else type(e).__name__
 
 
