@@ -12,7 +12,8 @@ numpy) above all, page by page until written. Workers started later, from a proc
 threads, come from a 'forkserver' that imported the estimation's modules once for all of them
 (forking a threaded process could copy a lock held by another thread). How workers are
 started, and what they do with their memory, is :mod:`multi_map_merge.runtime`'s; this module
-is the pool of pair jobs.
+is the pool of pair jobs. With ``dask_scheduler`` set, the pool is a Dask cluster's
+(:mod:`multi_map_merge.runtime.cluster`), the local pool taking over when it fails.
 """
 from __future__ import annotations
 
