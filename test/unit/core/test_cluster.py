@@ -177,17 +177,25 @@ def test_no_worker_left_leaves_the_cycle_to_the_local_pool_within_seconds(dask_c
     assert_same(m, local)
 
 
+def merged_locally_with_one_line(pieces, local, caplog, address):
+    """Merge with ``dask_scheduler`` at ``address`` where no cluster can serve: the merge is the
+    local pool's, with one fallback line (returned)."""
+    try:
+        m = merged(pieces, dask_scheduler=address, **CONFIG)
+        lines = fallback_lines(caplog)
+        assert len(lines) == 1, [r.getMessage() for r in lines]
+        assert_same(m, local)
+        return lines[0].getMessage()
+    finally:
+        _forget_cluster()
+
+
 def test_without_distributed_the_local_pool_merges_with_one_line(pieces, local, caplog, monkeypatch):
     caplog.set_level(logging.WARNING)
     _forget_cluster()
     monkeypatch.setitem(sys.modules, 'distributed', None)    # import distributed: ImportError
-    try:
-        m = merged(pieces, dask_scheduler='tcp://127.0.0.1:8786', **CONFIG)
-        lines = fallback_lines(caplog)
-        assert len(lines) == 1 and 'python3-distributed is not installed' in lines[0].getMessage()
-        assert_same(m, local)
-    finally:
-        _forget_cluster()
+    line = merged_locally_with_one_line(pieces, local, caplog, 'tcp://127.0.0.1:8786')
+    assert 'python3-distributed is not installed' in line
 
 
 def test_distributed_is_imported_only_when_a_scheduler_is_given(pieces):
@@ -212,15 +220,10 @@ def test_distributed_is_imported_only_when_a_scheduler_is_given(pieces):
 def test_an_unreachable_scheduler_falls_back_within_seconds_with_one_line(pieces, local, caplog):
     caplog.set_level(logging.WARNING)
     _forget_cluster()
-    try:
-        t0 = time.monotonic()
-        m = merged(pieces, dask_scheduler='tcp://127.0.0.1:1', **CONFIG)
-        assert time.monotonic() - t0 < cluster.CONNECT_TIMEOUT_S + 10
-        lines = fallback_lines(caplog)
-        assert len(lines) == 1 and 'tcp://127.0.0.1:1' in lines[0].getMessage()
-        assert_same(m, local)
-    finally:
-        _forget_cluster()
+    t0 = time.monotonic()
+    line = merged_locally_with_one_line(pieces, local, caplog, 'tcp://127.0.0.1:1')
+    assert time.monotonic() - t0 < cluster.CONNECT_TIMEOUT_S + 10
+    assert 'tcp://127.0.0.1:1' in line
 
 
 # -- the pool itself, mid-cycle: tasks that wait (time.sleep: importable on the workers), and a
