@@ -24,7 +24,7 @@ from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
-from . import bend, corroborate, deform, drift, joint, links, placement, spawn, verify
+from . import bend, corroborate, deform, drift, joint, links, placement, schedule, spawn, verify
 from .composite import Lattice, Patch, composite, lattice_for, warp_patch
 from .config import MergeConfig
 from .grid import DEFAULT_FREE_THRESH, DEFAULT_OCC_THRESH, Grid, same_grid
@@ -34,7 +34,7 @@ from .placement import Placement
 from .priors import PriorRefused, in_priors_frame, relative_pose
 from .robot_map import RobotMap
 from .state import link_dict, link_from_dict, placement_dict
-from .transforms import image_to_pose, pose_distance
+from .transforms import cell_to_metric, image_to_pose, pose_distance, pose_to_image
 from .workers import PairWorkers
 
 #: why the reference robot is the one it is (:meth:`MapMerger.reference_choice`)
@@ -147,7 +147,15 @@ class MapMerger:
         self._reference_why = REF_PARAMETER if c.reference_robot else REF_FIRST_BY_NAME
         self._workers = PairWorkers(c)   # crops and features of the maps, the worker pool
         self._links: Dict[Tuple[str, str], Link] = {}
+        # per pair: the map versions it was last worked on (tracked or aligned), its last
+        # alignment from features, and whether its link's last tracking failed (core/schedule.py)
         self._tried: Dict[Tuple[str, str], Tuple[int, int]] = {}
+        self._aligned: Dict[Tuple[str, str], schedule.Aligned] = {}
+        self._track_failed: set = set()
+        self._cycle = 0
+        self._seen_versions: Dict[str, int] = {}   # per robot: its map's version the last cycle saw
+        self._since_slow: Dict[str, int] = {}      # per robot: new versions since its last slow-schedule turn
+        self._facts: Dict[str, Tuple[tuple, schedule.MapFacts]] = {}
         self._results: Dict[Tuple[str, str], PairResult] = {}
         self._placements: Dict[str, Placement] = {}
         self._patches: Dict[str, Tuple[tuple, Optional[Patch]]] = {}
@@ -309,6 +317,8 @@ class MapMerger:
             self._prior_epoch += 1
             for k in [k for k in self._tried if name in k]:
                 del self._tried[k]
+            for k in [k for k in self._aligned if name in k]:
+                del self._aligned[k]
             tol_d, tol_a = self.config.initial_pose_tolerance
             for k, e in list(self._links.items()):
                 P = relative_pose(priors, e.parent, e.child)
@@ -418,6 +428,8 @@ class MapMerger:
         with self._lock:
             self._links.clear()
             self._tried.clear()
+            self._aligned.clear()
+            self._track_failed.clear()
             self._results.clear()
             self._placements.clear()
             self._patches.clear()
@@ -444,16 +456,19 @@ class MapMerger:
         epoch = self._prior_epoch
         # (0) links saved by an earlier run are used only once the grids confirm them
         events = self._verify_restored(maps)
-        # the pairs of robots whose maps changed since they were last estimated
-        todo = self._pairs(maps, ref)
+        # the pairs whose maps changed: kept links tracked, the others aligned by priority
+        plan = self._plan(maps, ref)
         # (1) AKAZE features of the maps that changed, (2) match, (3) rigid RANSAC + inlier
-        # ratio, (4) verify on the grids and refine: every pair in the worker processes
-        results = self._workers.align_pairs(maps, todo)
+        # ratio, (4) verify on the grids and refine: the pairs in the worker processes, within
+        # the cycle's budget; a tracked link is refined and verified on its new maps
+        results = self._workers.align_pairs(maps, plan.todo, self._tracks(maps, plan), self.config.estimation_budget)
         if epoch != self._prior_epoch:
             return events     # a prior changed meanwhile: these were gated by the old one
-        # (4) keep each pair's link if verified and more reliable than the kept one
-        for (a, b), r in zip(todo, results):
-            self._keep(maps[a], maps[b], r)
+        # (4) keep each pair's link if verified and more reliable than the kept one (or tracked)
+        done = dict(zip(plan.todo, results))
+        for key in schedule.pairs_of(maps, ref):
+            if done.get(key) is not None:
+                self._keep(maps[key[0]], maps[key[1]], done[key], plan)
         # (4) place every robot through its most reliable links; (6) that is its TF
         events += self._place(maps, ref)
         # links of little evidence that corroborate each other (a cycle closes): kept, placed again
@@ -609,30 +624,73 @@ class MapMerger:
         pair's current grids."""
         return verify.pose_on_grids(self.config, pa.grid, ch.grid, T)
 
-    def _pairs(self, maps: Dict[str, RobotMap], ref: str) -> List[Tuple[str, str]]:
-        """Pairs (parent, child) whose maps changed since they were last tried: every pair of
-        robots (so a robot that misses the reference can chain through another)."""
-        names = sorted(maps)
-        out = []
-        for i, a in enumerate(names):
-            for b in names[i + 1:]:
-                pa, ch = (a, b) if b != ref else (b, a)
-                key = (pa, ch)
-                if self._tried.get(key) != (maps[pa].version, maps[ch].version):
-                    out.append(key)
+    def _map_facts(self, m: RobotMap) -> schedule.MapFacts:
+        """What the schedule needs of a map (:class:`schedule.MapFacts`), once per version."""
+        cached = self._facts.get(m.name)
+        if cached is None or cached[0] != m.key:
+            c = self.config
+            g = m.grid
+            box = g.known_box(c.free_thresh, c.occupied_thresh)
+            corners = None
+            if box is not None:
+                r0, r1, c0, c1 = box
+                W = cell_to_metric(g.resolution, g.origin)
+                cells = np.array([[c0, r0], [c1, r0], [c0, r1], [c1, r1]], np.float64)
+                corners = cells @ W[:2, :2].T + W[:2, 2]
+            known = int(np.count_nonzero(g.levels(c.free_thresh, c.occupied_thresh)))
+            cached = self._facts[m.name] = (m.key, schedule.MapFacts(m.version, known, corners))
+        return cached[1]
+
+    def _plan(self, maps: Dict[str, RobotMap], ref: str) -> schedule.Plan:
+        """The cycle's pair work (:func:`schedule.plan`): pairs (parent, child) whose maps changed
+        since they were last worked on, every pair of robots (so a robot that misses the
+        reference can chain through another)."""
+        facts = {n: self._map_facts(m) for n, m in maps.items()}
+        with self._lock:
+            self._cycle += 1
+            for n, m in maps.items():
+                if self._seen_versions.get(n) != m.version:
+                    self._since_slow[n] = self._since_slow.get(n, 0) + 1
+            self._seen_versions = {n: m.version for n, m in maps.items()}
+            due = {n for n, k in self._since_slow.items() if k >= schedule.SLOW_EVERY and n in maps}
+            for n in due:
+                self._since_slow[n] = 0
+            placed = {n: p.T for n, p in self._placements.items() if n in maps}
+            via = {n: p.via for n, p in self._placements.items()}
+            return schedule.plan(facts, ref, dict(self._links), dict(self._tried), dict(self._aligned),
+                                 set(self._track_failed), placed, via, due, maps[ref].grid.resolution)
+
+    def _tracks(self, maps: Dict[str, RobotMap], plan: schedule.Plan) -> Dict[Tuple[str, str], np.ndarray]:
+        """The kept links to track, as transforms between the pairs' current grids' cells."""
+        out = {}
+        for (a, b), T in plan.track.items():
+            pa, ch = maps[a].grid, maps[b].grid
+            out[(a, b)] = pose_to_image(T, pa.resolution, pa.origin, ch.resolution, ch.origin)
         return out
 
-    def _keep(self, pa: RobotMap, ch: RobotMap, r: PairResult) -> None:
+    def _keep(self, pa: RobotMap, ch: RobotMap, r: PairResult, plan: Optional[schedule.Plan] = None) -> None:
         """(4) keep the pair's result if it is verified and replaces the kept link
-        (:func:`links.replacement`: the paper's more-reliable rule, refined)."""
+        (:func:`links.replacement`: the paper's more-reliable rule, refined); a tracked link
+        (``r.tracked``) takes its refined pose, or is aligned from features next."""
         key = (pa.name, ch.name)
         r.stamp = time.time()
         with self._lock:
             if self._from_former_life_locked(pa) or self._from_former_life_locked(ch):
                 return               # a map restarted (or robot removed) since the cycle began
             self._tried[key] = (pa.version, ch.version)
-            self._results[key] = r
             old = self._links.get(key)
+            if r.tracked:
+                self._track(key, r, old, image_to_pose(r.A, pa.grid.resolution, pa.grid.origin,
+                                                       ch.grid.resolution, ch.grid.origin))
+                return
+            self._results[key] = r
+            self._track_failed.discard(key)
+            placed = {n: p.T for n, p in self._placements.items()}
+        if plan is not None:
+            facts = {n: self._map_facts(m) for n, m in ((pa.name, pa), (ch.name, ch))}
+            expected = schedule.expected_overlap(facts, placed, key, pa.grid.resolution)
+            with self._lock:
+                self._aligned[key] = schedule.Aligned(self._cycle, expected)
         if not r.accepted:
             return
         T = image_to_pose(r.A, pa.grid.resolution, pa.grid.origin, ch.grid.resolution, ch.grid.origin)
@@ -647,6 +705,27 @@ class MapMerger:
             self._links[key] = Link(pa.name, ch.name, T, inlier_ratio, r.agreement, inliers, r.matches,
                                     time.time(), r.overlap, r.cov, r.bend, r.centre, r.parent_turn, r.child_turn)
             self.state_version += 1
+
+    def _track(self, key: Tuple[str, str], r: PairResult, old: Optional[Link], T: np.ndarray) -> None:
+        """(under the lock) A tracked link's result: the link refined on its new maps (its pose,
+        agreement and overlap; its inliers, covariance and where it was fitted stay those of its
+        alignment from features), or, when it failed, aligned from features next cycle."""
+        if old is None:
+            return                   # forgotten meanwhile
+        if not r.accepted:
+            self._track_failed.add(key)
+            self._results[key] = dataclasses.replace(
+                r, matches=old.matches, inliers=old.inliers, inlier_ratio=old.inlier_ratio,
+                reason='tracking the kept link failed (%s): aligned again from features' % r.reason)
+            return
+        self._track_failed.discard(key)
+        self._results[key] = dataclasses.replace(r, matches=old.matches, inliers=old.inliers,
+                                                 inlier_ratio=old.inlier_ratio)
+        if r.overlap <= old.overlap:
+            return                   # as links.replacement: the pose refined on more overlap only
+        self._links[key] = dataclasses.replace(old, T=T, agreement=r.agreement, overlap=r.overlap,
+                                               stamp=time.time())
+        self.state_version += 1
 
     def align_robots(self, pa: RobotMap, ch: RobotMap, seed: int = 0) -> PairResult:
         """Steps (2)-(4) for two robots' maps, here in this process (:func:`pair.align_pair` of

@@ -57,6 +57,8 @@ class PairResult:
         few_evidence: refused only for too little evidence (fewer than ``few_inliers`` RANSAC
             inliers, agreeing below ``few_inliers_min_agreement``), every other gate passed: a
             link that another such link can corroborate (:mod:`corroborate`).
+        tracked: the kept link followed onto new maps (:func:`track_pair`), not a feature
+            match: its ``matches``, ``inliers`` and ``inlier_ratio`` are zero.
     """
 
     A: Optional[np.ndarray]
@@ -75,6 +77,7 @@ class PairResult:
     few_evidence: bool = False
     parent_turn: Optional[float] = None
     child_turn: Optional[float] = None
+    tracked: bool = False
 
 
 @dataclass
@@ -89,7 +92,7 @@ class PairInput:
     levels: np.ndarray            # uint8 levels (grid.UNKNOWN/FREE/OCCUPIED), OccupancyGrid order
     resolution: float             # metres per cell
     origin: Tuple[float, float, float]   # of the whole grid
-    features: Features            # positions in the crop's cells
+    features: Optional[Features]  # positions in the crop's cells; None where only tracked (track_pair)
     owner: str = ''               # the merger it comes from: (owner, name, version) is unique
     offset: Tuple[int, int] = (0, 0)     # (col, row) of the crop's cell (0, 0) in the grid
 
@@ -236,6 +239,32 @@ def align_pair(config: MergeConfig, pa: PairInput, ch: PairInput, seed: int = 0)
     if r.A is not None:
         r.A = _grid_cells(r.A, pa, ch)
     return r
+
+
+def track_pair(config: MergeConfig, pa: PairInput, ch: PairInput, A: np.ndarray) -> PairResult:
+    """A kept link followed onto new versions of its maps, as a scan matcher tracks: ``A`` (cells
+    of ``ch``'s grid -> cells of ``pa``'s grid: the kept link on the current grids) polished by
+    ICP on the walls (:func:`refined`), then verified on the grids and gated as a feature
+    hypothesis is, bar the features' gates (no features are matched: ``pa.features`` and
+    ``ch.features`` may be None). Milliseconds where :func:`align_pair` takes a tenth of a
+    second or more. The result's ``tracked`` is True; its inlier fields are zero (the merger keeps
+    the link's own)."""
+    A0 = se2(-pa.offset[0], -pa.offset[1], 0.0) @ A @ se2(ch.offset[0], ch.offset[1], 0.0)
+    h = PairResult(refined(config, pa, ch, A0) if config.refine else A0, tracked=True)
+    tol = config.agreement_tolerance
+    h.agreement, h.overlap = verify.agreement(pa.levels, ch.levels, h.A, tol, (_known(pa)[0], _known(ch)[0]),
+                                              _walls(pa, tol))
+    contradiction = contradicts_prior(config, pa, ch, h.A)
+    if contradiction:
+        h.reason = contradiction
+    elif h.overlap < config.min_overlap_cells:
+        h.reason = 'overlap %d cells < %d' % (h.overlap, config.min_overlap_cells)
+    elif h.agreement < config.min_agreement:
+        h.reason = 'grids disagree: agreement %.2f < %.2f' % (h.agreement, config.min_agreement)
+    else:
+        h.accepted = True
+    h.A = _grid_cells(h.A, pa, ch)
+    return h
 
 
 def _cost_field(p: PairInput) -> covariance.CostField:

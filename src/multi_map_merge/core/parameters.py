@@ -574,6 +574,12 @@ MERGER_ROWS = (
           ("estimation worker processes (forked at the node's start, sharing its memory); 0 = one per core, "
            'and small problems (maps whose known parts hold under 400,000 cells in all) estimated in the '
            "node's own process; 1 = always in the node's own process; 2 or more = that many, always used")),
+        _P('estimation_budget', 5.0, _float(0.0), 's',
+          'alignments from features start within this of a cycle\'s start; 0 = no limit',
+          ("seconds of an estimation cycle within which its pairs' alignments from features start, in priority "
+           'order (pairs that can place a robot not yet placed first, by the overlap they can have); the '
+           'others wait for a later cycle, so that a cycle places what it found without waiting for every '
+           "pair of a large team. Kept links are tracked on new maps (milliseconds) beyond it. 0 = no limit")),
         _P('dask_scheduler', '', _string(False), '',
           ("a Dask scheduler's address (e.g. tcp://host:8786) to align the pairs on its workers; "
            '"" = the local workers'),

@@ -18,10 +18,13 @@ is the pool of pair jobs. With ``dask_scheduler`` set, the pool is a Dask cluste
 from __future__ import annotations
 
 import itertools
+import math
 import os
+import time
 import zlib
+from concurrent.futures import FIRST_COMPLETED, wait
 from concurrent.futures.process import BrokenProcessPool
-from typing import Dict, List, Tuple
+from typing import Dict, List, Optional, Tuple
 
 import numpy as np
 
@@ -29,7 +32,7 @@ from ..runtime import process
 from ..runtime.memory import run_task
 from .config import MergeConfig
 from .features import Features
-from .pair import PairInput, PairResult, align_pair, crop_known, describe_version
+from .pair import PairInput, PairResult, align_pair, crop_known, describe_version, track_pair
 from .robot_map import RobotMap
 
 _MERGERS = itertools.count()
@@ -109,12 +112,27 @@ class PairWorkers:
         return PairInput(m.name, m.version, levels, m.grid.resolution, m.grid.origin,
                          self.features_of(m), self.uid, offset)
 
-    def align_pairs(self, maps: Dict[str, RobotMap], todo: List[Tuple[str, str]]) -> List[PairResult]:
-        """Features of the maps that changed, then every pair of ``todo`` aligned
-        (:func:`pair.align_pair`), the results in ``todo``'s order.
+    def track_input(self, m: RobotMap) -> PairInput:
+        """A map as one side of a tracked pair (:func:`pair.track_pair`): its crop, no features
+        (a map only tracked is never described)."""
+        levels, offset = self.crop(m)
+        return PairInput(m.name, m.version, levels, m.grid.resolution, m.grid.origin, None, self.uid, offset)
 
-        With a worker pool the two stages overlap: waiting for every map's features before
-        the first pair would leave a worker idle while the slowest map is described.
+    def align_pairs(self, maps: Dict[str, RobotMap], todo: List[Tuple[str, str]],
+                    tracks: Optional[Dict[Tuple[str, str], np.ndarray]] = None,
+                    budget: float = 0.0) -> List[Optional[PairResult]]:
+        """Every pair of ``todo`` (parent, child) worked on, the results in ``todo``'s order: a
+        pair of ``tracks`` follows its kept link (``tracks[pair]``: cells of the child's grid ->
+        cells of the parent's, :func:`pair.track_pair`); the others are aligned from their
+        features (:func:`pair.align_pair`, the features of the maps that changed computed first).
+
+        ``budget`` (seconds, 0 = none): no alignment but the first starts after it has passed
+        since the call began; the pairs not started get None (the merger tries them in a later cycle). Tracked
+        pairs always run, first: they take milliseconds. The alignments start in ``todo``'s order
+        (the merger's priority).
+
+        With a worker pool the stages overlap: waiting for every map's features before the first
+        pair would leave a worker idle while the slowest map is described.
 
         A worker that died (killed, e.g. by the kernel's OOM killer) breaks the pool: this
         cycle raises ``BrokenProcessPool``, and the next one starts a new pool.
@@ -123,6 +141,7 @@ class PairWorkers:
         the same jobs, the same results. A cluster that fails (unreachable, its scheduler or
         every worker lost) is left for the local pool, which does this cycle's pairs again:
         the merge completes, with one log line."""
+        tracks = tracks or {}
         address = self.config.dask_scheduler
         if address and todo:
             # a Dask cluster (runtime/cluster.py); when it fails, the local pool does the cycle again
@@ -130,48 +149,78 @@ class PairWorkers:
             try:
                 pool = cluster.pool(address)
                 if pool is not None:
-                    return self._align_pairs(maps, todo, pool)
+                    return self._align_pairs(maps, todo, pool, tracks, budget)
             except cluster.failure_types() as e:
                 cluster.lost(address, e)
         try:
-            return self._align_pairs(maps, todo, self.pool_for(maps))
+            return self._align_pairs(maps, todo, self.pool_for(maps), tracks, budget)
         except BrokenProcessPool:
             _discard_pool()
             raise
 
-    def _align_pairs(self, maps: Dict[str, RobotMap], todo: List[Tuple[str, str]], pool) -> List[PairResult]:
+    def _align_pairs(self, maps: Dict[str, RobotMap], todo: List[Tuple[str, str]], pool,
+                     tracks: Dict[Tuple[str, str], np.ndarray], budget: float) -> List[Optional[PairResult]]:
         c = self.config
+        deadline = time.monotonic() + budget if budget > 0 else math.inf
         seeds = {ab: zlib.crc32(('%s|%s' % ab).encode()) for ab in todo}
-        stale = self._stale(maps)
+        detect = [ab for ab in todo if ab not in tracks]
+        results: Dict[Tuple[str, str], PairResult] = {}
+        if pool is None:
+            for ab in todo:
+                if ab in tracks:
+                    results[ab] = track_pair(c, self.track_input(maps[ab[0]]), self.track_input(maps[ab[1]]),
+                                             tracks[ab])
+            for i, ab in enumerate(detect):
+                if i and time.monotonic() > deadline:
+                    break                     # (one alignment at least per cycle: progress)
+                results[ab] = align_pair(c, self.input(maps[ab[0]]), self.input(maps[ab[1]]), seeds[ab])
+            return [results.get(ab) for ab in todo]
+        running: Dict[object, tuple] = {}    # future -> ('track' | 'pair', pair) or ('features', map)
+        for ab in todo:
+            if ab in tracks:
+                running[pool.submit(run_task, track_pair, c, self.track_input(maps[ab[0]]),
+                                    self.track_input(maps[ab[1]]), tracks[ab])] = ('track', ab)
+        needed = {n: maps[n] for ab in detect for n in ab}
+        stale = self._stale(needed)
         # the biggest maps first: the last task to start should be a short one
         stale.sort(key=lambda m: -m.grid.width * m.grid.height)
-        if pool is None or not stale:
-            self._features_all(maps, pool)
-            inputs = {n: self.input(maps[n]) for n in {x for ab in todo for x in ab}}
-            return _map(pool, align_pair, [c] * len(todo), [inputs[a] for a, _ in todo],
-                        [inputs[b] for _, b in todo], [seeds[ab] for ab in todo])
-        from concurrent.futures import as_completed
-        waiting = {pool.submit(run_task, describe_version, c, self.crop(m)[0], self.uid, m.name, m.version): m
-                   for m in stale}
-        ready = set(maps) - {m.name for m in stale}
-        queued: Dict[Tuple[str, str], object] = {}
+        for m in stale:
+            running[pool.submit(run_task, describe_version, c, self.crop(m)[0], self.uid, m.name, m.version)] = (
+                'features', m)
+        ready = set(needed) - {m.name for m in stale}
+        waiting = list(detect)            # in priority order
         inputs: Dict[str, PairInput] = {}
+        # alignments in flight at most: enough to keep every worker busy, few enough that the
+        # budget can stop the rest
+        in_flight = len(detect) if budget <= 0 else 2 * max(
+            1, getattr(pool, '_max_workers', 0) or c.workers or os.cpu_count() or 1)
 
-        def submit_ready() -> None:
-            for ab in todo:
-                if ab not in queued and ab[0] in ready and ab[1] in ready:
+        def start_ready() -> None:
+            busy = sum(1 for kind, _ in running.values() if kind == 'pair')
+            for ab in list(waiting):
+                if busy >= in_flight or (len(waiting) < len(detect) and time.monotonic() > deadline):
+                    return                    # (one alignment at least per cycle: progress)
+                if ab[0] in ready and ab[1] in ready:
                     for n in ab:
                         if n not in inputs:
                             inputs[n] = self.input(maps[n])
-                    queued[ab] = pool.submit(run_task, align_pair, c, inputs[ab[0]], inputs[ab[1]], seeds[ab])
+                    running[pool.submit(run_task, align_pair, c, inputs[ab[0]], inputs[ab[1]], seeds[ab])] = (
+                        'pair', ab)
+                    waiting.remove(ab)
+                    busy += 1
 
-        submit_ready()
-        for fut in as_completed(waiting):
-            m = waiting[fut]
-            self._features[m.name] = (m.key, fut.result())
-            ready.add(m.name)
-            submit_ready()
-        return [queued[ab].result() for ab in todo]
+        start_ready()
+        while running:
+            done, _ = wait(list(running), return_when=FIRST_COMPLETED)
+            for fut in done:
+                kind, what = running.pop(fut)
+                if kind == 'features':
+                    self._features[what.name] = (what.key, fut.result())
+                    ready.add(what.name)
+                else:
+                    results[what] = fut.result()
+            start_ready()
+        return [results.get(ab) for ab in todo]
 
 
 def _map(pool, fn, *iterables) -> list:

@@ -9,6 +9,7 @@ from multi_map_merge.core.config import MergeConfig
 from multi_map_merge.core.grid import Grid, known_bbox
 from multi_map_merge.core.mapio import load_map
 from multi_map_merge.core.merger import MapMerger
+from multi_map_merge.core.schedule import SLOW_EVERY
 from multi_map_merge.core.state import load_state, save_state
 from multi_map_merge.lab.pieces import cut_piece
 
@@ -129,12 +130,22 @@ def test_keeps_most_reliable_transform(ps):
     m = merged(grids(ps, 'ab'))
     kept = m.placements()['b']
     link, first = m.links()[('a', 'b')], m.pair_results()[('a', 'b')]
-    # a new version of b's map: the pair is aligned again on the same grids, and its result is
-    # no more reliable than the kept link (a byte-identical map would not even be aligned again)
+    # a new version of b's map: the kept link is tracked on it (a byte-identical map would not
+    # even be looked at), and found again on no more overlap
     m.update_map('b', another_version(ps[1][0]))
     m.estimate()
     again = m.pair_results()[('a', 'b')]
-    assert again is not first and again.accepted
+    assert again is not first and again.accepted and again.tracked
+    assert again.overlap <= link.overlap
+    # within SLOW_EVERY new versions, the pair's turn on the slow schedule: aligned again from
+    # features, its result no more reliable than the kept link
+    for k in range(SLOW_EVERY):
+        m.update_map('b', another_version(ps[1][0]) if k % 2 else ps[1][0])
+        m.estimate()
+        again = m.pair_results()[('a', 'b')]
+        if not again.tracked:
+            break
+    assert not again.tracked and again.accepted
     assert again.inlier_ratio <= link.inlier_ratio + m.config.replace_margin
     # so the kept link and the placement made of it stay, nothing moves
     assert m.links()[('a', 'b')] is link
@@ -176,9 +187,11 @@ def test_early_look_alike_is_replaced_despite_its_higher_inlier_ratio(ps, pose_g
     m._links[('a', 'b')] = Link('a', 'b', wrong, 1.0, 0.99, 40, 40, 0.0, 1000)
     m.estimate()                        # ... then the look-alike is kept (maps unchanged) ...
     assert pose_error(m.placements()['b'].T, wrong)[0] < 0.35
-    for n in 'ab':                      # new map versions (the same levels): the rule alone acts
-        m.update_map(n, another_version(ps['ab'.index(n)][0]))
-    m.estimate()
+    for k in range(2):                  # new map versions (the same levels): the rule alone acts
+        for n in 'ab':                  # (the look-alike's tracking fails first, then the pair
+            g = ps['ab'.index(n)][0]    # is aligned again from features)
+            m.update_map(n, another_version(g) if k == 0 else g)
+        m.estimate()
     assert m.links()[('a', 'b')].inlier_ratio < 0.9   # the replacement's is lower than the kept one's
     assert_placed_right(m, ps, 'b')
 
@@ -263,7 +276,7 @@ def test_a_map_restarted_during_an_estimation_cycle_is_not_placed_by_it(intel):
         m.update_map(n, g)
     # one cycle, step by step as estimate() runs it, with the restart of b in the middle
     ref, maps = m._snapshot()
-    todo = m._pairs(maps, ref)
+    todo = m._plan(maps, ref).todo
     estimates = m._workers.align_pairs(maps, todo)
     assert any(r.accepted for r in estimates)       # the former map does link
     g = ps[1][0]
