@@ -58,6 +58,12 @@ ICP_GATE = 2.0
 MIN_WALLS = 100
 # wall cells per map used (evenly thinned): the search scores at most covariance.MAX_POINTS
 MAX_WALLS = 4000
+# placed maps a robot is refined against at most: those whose placed known boxes meet its own
+# most (in a large team a map overlaps a few others much and the rest little or not at all)
+NEIGHBOURS = 8
+# metres a robot's placed known box is grown by when looking for the maps it may meet: beyond
+# the window its union is warped on (the search's window and the cost field's pad)
+NEAR = 2.0
 
 
 @dataclass
@@ -87,22 +93,59 @@ _LEVELS_LUT[0] = FREE
 _LEVELS_LUT[100] = OCCUPIED
 
 
+def _placed_box(r: Robot, T: np.ndarray, grow: float) -> Tuple[float, float, float, float]:
+    """(x0, y0, x1, y1) metres: the axis-aligned box in the merged frame of the robot's known
+    box placed at ``T``, grown by ``grow`` metres."""
+    r0, r1, c0, c1 = r.box
+    p = apply(T @ r.W, np.array([[c0, r0], [c1, r0], [c0, r1], [c1, r1]], np.float64))
+    return (float(p[:, 0].min()) - grow, float(p[:, 1].min()) - grow,
+            float(p[:, 0].max()) + grow, float(p[:, 1].max()) + grow)
+
+
+def neighbours(robots: Dict[str, Robot], poses: Dict[str, np.ndarray], n: str,
+               most: int = NEIGHBOURS) -> List[str]:
+    """The robots of ``poses`` (robot -> pose in the merged frame) that robot ``n`` is refined
+    against: those whose placed known boxes meet its own grown by NEAR (the others land
+    nowhere in its union's window), the ``most`` whose boxes meet it most; by name."""
+    a = _placed_box(robots[n], poses[n], NEAR)
+    met = []
+    for o in sorted(poses):
+        if o == n or o not in robots:
+            continue
+        b = _placed_box(robots[o], poses[o], 0.0)
+        w, h = min(a[2], b[2]) - max(a[0], b[0]), min(a[3], b[3]) - max(a[1], b[1])
+        if w > 0 and h > 0:
+            met.append((-w * h, o))
+    return sorted(o for _, o in sorted(met)[:most])
+
+
 def refine_placements(robots: Dict[str, Robot], anchors: Dict[str, np.ndarray], ref: str,
-                      lattice: Lattice, tolerance: int) -> Dict[str, np.ndarray]:
+                      lattice: Lattice, tolerance: int, current: Optional[Dict[str, np.ndarray]] = None,
+                      moving: Optional[List[str]] = None) -> Dict[str, np.ndarray]:
     """The pose of every robot of ``anchors`` (3x3, its map frame in the merged frame) refined
-    against every other placed robot it overlaps (module docstring); the reference and robots
-    without walls on another's known cells keep their anchor. ``robots``: every placed robot
-    (the reference included), ``tolerance``: verification's wall tolerance (cells). Returns
-    robot -> pose, for every robot of ``anchors``."""
-    poses = {n: T.copy() for n, T in anchors.items()}
+    against the placed robots it overlaps (module docstring: its :func:`neighbours`); the
+    reference and robots without walls on another's known cells keep their anchor. ``robots``:
+    every placed robot (the reference included), ``tolerance``: verification's wall tolerance
+    (cells). ``moving``: the robots refined (default: every one); the others stay at their pose
+    of ``current`` (default: their anchor). Returns robot -> pose, for every robot of
+    ``anchors``."""
+    start = {n: T.copy() for n, T in anchors.items()}
     movable = [n for n in sorted(anchors) if n != ref and n in robots]
+    if moving is not None:
+        movable = [n for n in movable if n in moving]
+        for n in start:
+            if n not in movable and current is not None and n in current:
+                start[n] = current[n].copy()
+    poses = {n: T.copy() for n, T in start.items()}
     if len(poses) < 2 or not movable:
         return poses
+    near = {n: neighbours(robots, start, n) for n in movable}
     seen: Dict[str, list] = {}      # per robot: the others' poses it was last refined against
-    for _ in range(ROUNDS):
+    # (a few robots refined against many held: one round; their moves barely touch each other)
+    for _ in range(ROUNDS if moving is None else 1):
         moved = False
         for n in movable:
-            others = {o: poses[o] for o in sorted(poses) if o != n and o in robots}
+            others = {o: poses[o] for o in near[n]}
             if n in seen and all(np.array_equal(a, b) for a, b in zip(seen[n], others.values())):
                 continue                 # the same inputs give the same pose
             seen[n] = list(others.values())
@@ -112,9 +155,12 @@ def refine_placements(robots: Dict[str, Robot], anchors: Dict[str, np.ndarray], 
                 moved = True
         if not moved:
             break
-    # all together no worse than the links' placements, or the links' placements stand
-    if joint_agreement(robots, poses, tolerance) < joint_agreement(robots, anchors, tolerance):
-        return {n: T.copy() for n, T in anchors.items()}
+    # all together no worse than the links' placements, or the links' placements stand (over
+    # the overlaps of the robots refined)
+    pairs = sorted({tuple(sorted((n, o))) for n in movable for o in near[n]
+                    if not (np.array_equal(poses[n], start[n]) and np.array_equal(poses[o], start[o]))})
+    if _agreement_over(robots, poses, pairs, tolerance) < _agreement_over(robots, start, pairs, tolerance):
+        return start
     return poses
 
 
@@ -233,12 +279,17 @@ def joint_agreement(robots: Dict[str, Robot], poses: Dict[str, np.ndarray], tole
     """Verification's agreement summed over every pair of placed robots of ``poses`` (robot ->
     pose in the merged frame): 0..1, 0 when no walls overlap."""
     names = [n for n in sorted(poses) if n in robots]
+    return _agreement_over(robots, poses, [(a, b) for i, a in enumerate(names) for b in names[i + 1:]], tolerance)
+
+
+def _agreement_over(robots: Dict[str, Robot], poses: Dict[str, np.ndarray], pairs, tolerance: int) -> float:
+    """Verification's agreement summed over ``pairs`` of robots at ``poses``: 0..1, 0 when no
+    walls overlap."""
     agree = conflict = 0
-    for i, a in enumerate(names):
-        for b in names[i + 1:]:
-            ag, co = _counts(robots[a], robots[b], inverse(poses[a]) @ poses[b], tolerance)
-            agree += ag
-            conflict += co
+    for a, b in pairs:
+        ag, co = _counts(robots[a], robots[b], inverse(poses[a]) @ poses[b], tolerance)
+        agree += ag
+        conflict += co
     return agree / float(agree + conflict) if agree + conflict else 0.0
 
 

@@ -151,6 +151,7 @@ class MapMerger:
         # alignment from features, and whether its link's last tracking failed (core/schedule.py)
         self._tried: Dict[Tuple[str, str], Tuple[int, int]] = {}
         self._aligned: Dict[Tuple[str, str], schedule.Aligned] = {}
+        self._refreshed: Dict[Tuple[str, str], Tuple[int, int]] = {}   # known cells at its last track or alignment
         self._track_failed: set = set()
         self._cycle = 0
         self._seen_versions: Dict[str, int] = {}   # per robot: its map's version the last cycle saw
@@ -164,7 +165,9 @@ class MapMerger:
         self._restored: Dict[Tuple[str, str], Link] = {}
         self._merged = None       # (patch identities, merged grid) of the last compose
         self._graph_key = None    # the links the last pose-graph placement was made of
-        self._joint_key = None    # the maps the last joint refinement was made of (_joint)
+        # (reference, per robot refined: (its map's key, its anchor)) of the joint refinement (_joint)
+        self._joint_key = None
+        self._joint_robots: Dict[str, Tuple[tuple, Optional[joint.Robot]]] = {}   # per robot, per map key
         # bend_maps: per bent map, (the map's version it was fitted to, its correction field)
         self._fields: Dict[str, Tuple[int, deform.Field]] = {}
         self._fields_key = None   # the maps and placements the fields were fitted to (_bend)
@@ -272,6 +275,7 @@ class MapMerger:
             self._patches.clear()
         self._placements.pop(name, None)
         self._patches.pop(name, None)
+        self._joint_robots.pop(name, None)
         for k in [k for k in self._links if name in k]:
             del self._links[k]
         for k in [k for k in self._restored if name in k]:
@@ -319,6 +323,8 @@ class MapMerger:
                 del self._tried[k]
             for k in [k for k in self._aligned if name in k]:
                 del self._aligned[k]
+            for k in [k for k in self._refreshed if name in k]:
+                del self._refreshed[k]
             tol_d, tol_a = self.config.initial_pose_tolerance
             for k, e in list(self._links.items()):
                 P = relative_pose(priors, e.parent, e.child)
@@ -429,6 +435,7 @@ class MapMerger:
             self._links.clear()
             self._tried.clear()
             self._aligned.clear()
+            self._refreshed.clear()
             self._track_failed.clear()
             self._results.clear()
             self._placements.clear()
@@ -658,7 +665,8 @@ class MapMerger:
             placed = {n: p.T for n, p in self._placements.items() if n in maps}
             via = {n: p.via for n, p in self._placements.items()}
             return schedule.plan(facts, ref, dict(self._links), dict(self._tried), dict(self._aligned),
-                                 set(self._track_failed), placed, via, due, maps[ref].grid.resolution)
+                                 set(self._track_failed), placed, via, due, maps[ref].grid.resolution,
+                                 dict(self._refreshed))
 
     def _tracks(self, maps: Dict[str, RobotMap], plan: schedule.Plan) -> Dict[Tuple[str, str], np.ndarray]:
         """The kept links to track, as transforms between the pairs' current grids' cells."""
@@ -679,6 +687,8 @@ class MapMerger:
                 return               # a map restarted (or robot removed) since the cycle began
             self._tried[key] = (pa.version, ch.version)
             old = self._links.get(key)
+            if plan is not None:
+                self._refreshed[key] = (self._map_facts(pa).known, self._map_facts(ch).known)
             if r.tracked:
                 self._track(key, r, old, image_to_pose(r.A, pa.grid.resolution, pa.grid.origin,
                                                        ch.grid.resolution, ch.grid.origin))
@@ -690,7 +700,8 @@ class MapMerger:
             facts = {n: self._map_facts(m) for n, m in ((pa.name, pa), (ch.name, ch))}
             expected = schedule.expected_overlap(facts, placed, key, pa.grid.resolution)
             with self._lock:
-                self._aligned[key] = schedule.Aligned(self._cycle, expected)
+                self._aligned[key] = schedule.Aligned(self._cycle, expected,
+                                                      (facts[pa.name].known, facts[ch.name].known))
         if not r.accepted:
             return
         T = image_to_pose(r.A, pa.grid.resolution, pa.grid.origin, ch.grid.resolution, ch.grid.origin)
@@ -785,40 +796,63 @@ class MapMerger:
                ref: str) -> Dict[str, Placement]:
         """The placements ``new`` (after hysteresis) refined by :mod:`joint` against each other,
         the reference and robots at their prior fixed; a robot it moves gets a new
-        :class:`Placement` (its ``graph_T`` the links' pose). Runs only when its inputs changed
-        since it last ran: a placement adopted anew (``new`` against ``old``) or a placed
-        robot's map. Its result is a function of those inputs (:mod:`joint`), so a cycle in
-        which nothing changed cannot move a robot, and a move smaller than SAME_POSE keeps the
-        robot's placement as it was (a map that grew a little does not move its TF)."""
+        :class:`Placement` (its ``graph_T`` the links' pose). Refines only the robots whose
+        inputs changed since they were last refined: their map, or their anchor (the links'
+        pose) by more than SAME_POSE (the reference's map: its neighbours); the others keep the
+        pose they were refined to, so that a team's cost per round of map updates grows with
+        the team, not with its square. A cycle in which nothing changed cannot move a robot,
+        and a move smaller than SAME_POSE keeps the robot's placement as it was (a map that grew
+        a little does not move its TF)."""
         c = self.config
         if not c.joint_placement:
             return new
         linked = [n for n, p in sorted(new.items()) if n in maps and (n == ref or p.via != placement.PRIOR)]
-        key = (ref, tuple((n, maps[n].key) for n in linked))
-        with self._lock:
-            same = key == self._joint_key
-        if same and not joint.anchors_changed(new, old):
-            return new
         robots = {}
         for n in linked:
-            g = maps[n].grid
-            r = joint.Robot.of(g, g.levels(c.free_thresh, c.occupied_thresh),
-                               g.known_values(c.free_thresh, c.occupied_thresh))
+            r = self._joint_robot(maps[n])
             if r is not None:
                 robots[n] = r
         if ref not in robots:
             return new
         anchors = {n: (new[n].graph_T if new[n].graph_T is not None else new[n].T) for n in robots}
-        poses = joint.refine_placements(robots, anchors, ref, lattice_for(maps[ref].grid), c.agreement_tolerance)
         with self._lock:
-            self._joint_key = key
+            last = self._joint_key
+        moving = None                  # every robot, from its anchor
+        current = {n: new[n].T for n in robots}
+        if last is not None and last[0] == ref and set(last[1]) <= set(robots):
+            # the robots whose map, or whose anchor beyond SAME_POSE, changed since they were
+            # refined (a robot new among them too); the reference's neighbours for the reference.
+            # The others keep the pose they were refined to (a placement adopted anew with an
+            # anchor that moved less, as the pose graph is solved again, too)
+            moving = {n for n in robots if n not in last[1] or last[1][n][0] != maps[n].key
+                      or not _same_pose(anchors[n], last[1][n][1])}
+            current.update({n: last[1][n][2] for n in robots if n not in moving})
+            if ref in moving:
+                moving.update(joint.neighbours(robots, current, ref))
+            if not moving:
+                moving = set()
+        poses = joint.refine_placements(robots, anchors, ref, lattice_for(maps[ref].grid), c.agreement_tolerance,
+                                        current, moving) if moving != set() else current
+        with self._lock:
+            kept = {} if moving is None or last is None else dict(last[1])
+            kept.update({n: (maps[n].key, anchors[n], poses[n]) for n in robots if moving is None or n in moving})
+            self._joint_key = (ref, {n: kept[n] for n in robots if n in kept})
         out = dict(new)
         for n, T in poses.items():
-            d, a = pose_distance(T, new[n].T)
-            if d > joint.SAME_POSE[0] or a > joint.SAME_POSE[1]:
+            if not _same_pose(T, new[n].T):
                 moved = not np.array_equal(T, anchors[n])
                 out[n] = dataclasses.replace(new[n], T=T, graph_T=anchors[n] if moved else None)
         return out
+
+    def _joint_robot(self, m: RobotMap) -> Optional[joint.Robot]:
+        """What the joint refinement needs of a map (:class:`joint.Robot`), once per version."""
+        cached = self._joint_robots.get(m.name)
+        if cached is None or cached[0] != m.key:
+            c = self.config
+            g = m.grid
+            cached = self._joint_robots[m.name] = (m.key, joint.Robot.of(
+                g, g.levels(c.free_thresh, c.occupied_thresh), g.known_values(c.free_thresh, c.occupied_thresh)))
+        return cached[1]
 
     def _bend(self, maps: Dict[str, RobotMap], ref: str) -> None:
         """Fit the correction field of every placed map (:mod:`deform`) when ``bend_maps`` is
@@ -859,6 +893,12 @@ class MapMerger:
             p = warp_patch(kv[1], kv[0], m.grid.resolution, m.grid.origin, T, lattice, c.max_cells)
         self._patches[m.name] = (key, p)
         return p
+
+
+def _same_pose(A: np.ndarray, B: np.ndarray) -> bool:
+    """Two poses within :data:`joint.SAME_POSE` of each other."""
+    d, a = pose_distance(A, B)
+    return d <= joint.SAME_POSE[0] and a <= joint.SAME_POSE[1]
 
 
 def _restarted(old: Grid, new: Grid) -> bool:

@@ -4,19 +4,24 @@ A pair's work costs what its maps changed, not what the team holds:
 
 * a pair with a verified link whose maps changed is *tracked*: the kept link followed onto the
   new maps (:func:`pair.track_pair`: ICP and verification, milliseconds), as a scan matcher
-  tracks. A robot's links that are tracked are its :data:`TRACKED_PER_ROBOT` links of the
-  largest overlap and the one its placement goes through; the others stand as they are until
-  the slow schedule aligns them again;
+  tracks. A robot's links that are tracked are the one its placement goes through and its
+  :data:`TRACKED_PER_ROBOT` links whose maps grew most since they were last tracked or aligned
+  (in turn, so that a link found on the small maps of a team's start is refined on what they
+  grew to, while a robot's cost per new map stays bounded); the others stand as they are;
 * full alignment from features (:func:`pair.align_pair`, a tenth of a second or more) runs for
-  a link whose tracking failed; for a pair without a link, when one of the two robots is not
-  placed yet (its map changed), or when both are placed and their maps, where they are placed,
-  can overlap (their known boxes meet in the merged frame) and that overlap grew by
-  :data:`GROWTH` since the pair was last aligned; and on a slow schedule: per robot, every
-  :data:`SLOW_EVERY` new versions of its map, its link aligned longest ago (so that a better
-  link can still be found: the paper's rule of the most reliable link holds);
+  a link whose tracking failed; for a pair without a link when one of the two robots is not
+  placed yet (its map changed); and on a slow schedule, one pair per robot every
+  :data:`SLOW_EVERY` new versions of its map: of its pairs with a placed robot but without a
+  link, the one whose maps, where they are placed, can overlap most (their known boxes meet in
+  the merged frame; a pair aligned before only once that overlap grew by :data:`GROWTH`), or
+  else its link whose maps grew most since it was aligned (so that a better link can still be
+  found: the paper's rule of the most reliable link holds; and a link found on the small maps
+  of a team's start is found again on what they grew to). A robot's pairs with placed robots
+  cost a bounded share of its new maps, so a round of map updates costs what the team's size
+  calls for, not its square;
 * the alignments go in priority order (:class:`Plan`): failed tracks, then pairs that can place
-  a robot not placed yet (with a placed robot first, by the overlap they can have), then placed
-  pairs by expected overlap, then the slow schedule. The merger gives the worker pool a time
+  a robot not placed yet (with a placed robot first, by the overlap they can have), then the
+  slow schedule's (pairs without a link by expected overlap, then links). The merger gives the worker pool a time
   budget per cycle (``estimation_budget``); what it does not start waits for a later cycle.
 
 Frames and units: boxes are in metres of the merged frame; overlaps in cells of the working
@@ -31,8 +36,8 @@ import numpy as np
 
 Pair = Tuple[str, str]
 
-# links per robot tracked when its map changes: its largest overlaps (and its placement's own)
-TRACKED_PER_ROBOT = 3
+# links per robot tracked when its map changes: those whose maps grew most (and its placement's own)
+TRACKED_PER_ROBOT = 2
 # a pair without a link is aligned again when the overlap its placed maps can have grew by this
 # factor since it was last aligned
 GROWTH = 1.2
@@ -57,11 +62,21 @@ class MapFacts:
 
 @dataclass
 class Aligned:
-    """A pair's last alignment from features: the estimation cycle it ran in and the overlap
-    (cells) the pair's placed maps could have then (None: a robot was not placed)."""
+    """A pair's last alignment from features: the estimation cycle it ran in, the overlap
+    (cells) the pair's placed maps could have then (None: a robot was not placed) and the two
+    maps' known cells then (parent's, child's)."""
 
     cycle: int
     expected: Optional[float]
+    known: Tuple[int, int] = (0, 0)
+
+
+def growth(facts: Mapping[str, MapFacts], k: Pair, then: Optional[Tuple[int, int]]) -> float:
+    """How much a pair's maps grew since ``then`` (their known cells, parent's and child's):
+    the product of the two maps' known cells now over then (infinite when not known)."""
+    if then is None or min(then) <= 0:
+        return float('inf')
+    return facts[k[0]].known / float(then[0]) * facts[k[1]].known / float(then[1])
 
 
 @dataclass
@@ -102,19 +117,20 @@ def box_overlap(a, b, resolution: float) -> float:
     return w * h / (resolution * resolution) if w > 0 and h > 0 else 0.0
 
 
-def tracked_links(links: Mapping[Pair, object], via: Mapping[str, str],
+def tracked_links(links: Mapping[Pair, object], via: Mapping[str, str], grown: Mapping[Pair, float],
                   per_robot: int = TRACKED_PER_ROBOT) -> Set[Pair]:
-    """The links that are tracked: per robot, its ``per_robot`` links of the largest overlap
-    (``link.overlap``; ties by name) and the link to the robot its placement goes through
-    (``via``: robot -> the robot it is placed through, '' for none)."""
-    by_robot: Dict[str, List[Tuple[int, Pair]]] = {}
+    """The links that are tracked: per robot, its ``per_robot`` links whose maps grew most
+    (``grown``: pair -> growth since it was last tracked or aligned, as :func:`growth`; ties:
+    the larger ``link.overlap``, then by name) and the link to the robot its placement goes
+    through (``via``: robot -> the robot it is placed through, '' for none)."""
+    by_robot: Dict[str, List[Tuple[float, int, Pair]]] = {}
     for k, e in links.items():
         for n in k:
-            by_robot.setdefault(n, []).append((int(getattr(e, 'overlap', 0)), k))
+            by_robot.setdefault(n, []).append((grown.get(k, 1.0), int(getattr(e, 'overlap', 0)), k))
     out: Set[Pair] = set()
     for ks in by_robot.values():
-        ks.sort(key=lambda t: (-t[0], t[1]))
-        out.update(k for _, k in ks[:per_robot])
+        ks.sort(key=lambda t: (-t[0], -t[1], t[2]))
+        out.update(k for _, _, k in ks[:per_robot])
     for n, v in via.items():
         if v and (v, n) in links:
             out.add((v, n))
@@ -123,26 +139,44 @@ def tracked_links(links: Mapping[Pair, object], via: Mapping[str, str],
     return out
 
 
+def linked_to(ref: str, links: Iterable[Pair]) -> Set[str]:
+    """The robots a chain of ``links`` joins to ``ref`` (``ref`` included)."""
+    nbrs: Dict[str, List[str]] = {}
+    for a, b in links:
+        nbrs.setdefault(a, []).append(b)
+        nbrs.setdefault(b, []).append(a)
+    seen, todo = {ref}, [ref]
+    while todo:
+        for o in nbrs.get(todo.pop(), ()):
+            if o not in seen:
+                seen.add(o)
+                todo.append(o)
+    return seen
+
+
 def plan(facts: Mapping[str, MapFacts], ref: str, links: Mapping[Pair, object],
          tried: Mapping[Pair, Tuple[int, int]], aligned: Mapping[Pair, Aligned], failed: Set[Pair],
          placements: Mapping[str, np.ndarray], via: Mapping[str, str], due: Set[str],
-         resolution: float) -> Plan:
+         resolution: float, refreshed: Optional[Mapping[Pair, Tuple[int, int]]] = None) -> Plan:
     """The cycle's pair work (module docstring). ``facts``: every robot's map; ``links``: the
     kept links; ``tried``: per pair, the map versions last worked on; ``aligned``: per pair, its
     last alignment from features; ``failed``: links whose last tracking failed;
-    ``placements``: robot -> pose (3x3) in the merged frame of the placed robots; ``via``: robot
+    ``placements``: robot -> pose (3x3) in the merged frame of the placed robots (those a chain
+    of ``links`` joins to ``ref`` count as placed); ``via``: robot
     -> the robot its placement goes through; ``due``: robots whose turn on the slow schedule
-    it is (:data:`SLOW_EVERY`); ``resolution``: metres per cell."""
+    it is (:data:`SLOW_EVERY`); ``resolution``: metres per cell; ``refreshed``: per link, its
+    maps' known cells when it was last tracked or aligned."""
+    # placed by links: a robot at its prior (or placed by a link dropped since) still needs one
+    reach = linked_to(ref, links)
+    placements = {n: T for n, T in placements.items() if n in reach}
+    if ref in facts:
+        placements.setdefault(ref, np.eye(3))   # (the reference is placed from its first map on)
     boxes = {n: placed_box(f.corners, placements.get(n)) for n, f in facts.items()}
-    tracked = tracked_links(links, via)
-    # the slow schedule: per robot due, its link aligned longest ago
-    slow: Set[Pair] = set()
-    for n in sorted(due):
-        mine = [k for k in links if n in k and k not in slow]
-        if mine:
-            slow.add(min(mine, key=lambda k: (aligned[k].cycle if k in aligned else -1, k)))
+    refreshed = refreshed or {}
+    tracked = tracked_links(links, via, {k: growth(facts, k, refreshed.get(k)) for k in links})
     work: List[Tuple[tuple, Pair]] = []
     track: Dict[Pair, np.ndarray] = {}
+    unlinked: Dict[Pair, float] = {}   # placed pairs without a link that may be aligned: their expected overlap
     for k in pairs_of(facts, ref):
         a, b = k
         if tried.get(k) == (facts[a].version, facts[b].version):
@@ -150,8 +184,6 @@ def plan(facts: Mapping[str, MapFacts], ref: str, links: Mapping[Pair, object],
         if k in links:
             if k in failed:
                 work.append(((FAILED_TRACK, 0.0), k))
-            elif k in slow:
-                work.append(((SLOW_SCHEDULE, aligned[k].cycle if k in aligned else -1), k))
             elif k in tracked:
                 track[k] = links[k].T
             continue                       # (an untracked link stands until the slow schedule)
@@ -161,12 +193,29 @@ def plan(facts: Mapping[str, MapFacts], ref: str, links: Mapping[Pair, object],
             if expected <= 0 or (last is not None and last.expected is not None
                                  and expected < GROWTH * last.expected):
                 continue                   # cannot overlap, or no more than when last aligned
-            work.append(((PLACED_PAIR, -expected), k))
+            unlinked[k] = expected
         else:
             # the overlap it can have: at most the smaller map's known cells
             cls = PLACES_ROBOT if (a in placements or b in placements) else PLACES_ROBOT_UNPLACED
             never = 0 if k not in aligned else 1
             work.append(((cls, never, -min(facts[a].known, facts[b].known)), k))
+    # the slow schedule: per robot due, one alignment: its placed pair without a link that can
+    # overlap most, else its link whose maps grew most since it was aligned
+    slots: Set[Pair] = set()
+    for n in sorted(due):
+        mine = sorted((-e, k) for k, e in unlinked.items() if n in k and k not in slots)
+        if mine:
+            slots.add(mine[0][1])
+            work.append(((PLACED_PAIR, mine[0][0]), mine[0][1]))
+            continue
+        mine = [k for k in links if n in k and k not in slots and k not in failed
+                and tried.get(k) != (facts[k[0]].version, facts[k[1]].version)]
+        if mine:
+            k = min(mine, key=lambda k: (-growth(facts, k, aligned[k].known if k in aligned else None),
+                                         aligned[k].cycle if k in aligned else -1, k))
+            slots.add(k)
+            track.pop(k, None)
+            work.append(((SLOW_SCHEDULE, aligned[k].cycle if k in aligned else -1), k))
     work.sort(key=lambda t: (t[0], t[1]))
     out = Plan(track=track)
     out.todo = list(track) + [k for _, k in work]

@@ -134,3 +134,34 @@ def test_robots_without_overlap_keep_their_pose():
     out = joint.refine_placements(robots, {'a': np.eye(3), 'b': far}, 'a', lattice_for(g), 2)
     assert np.array_equal(out['b'], far)
     assert inverse(out['a']).shape == (3, 3)
+
+
+def test_only_the_robots_that_moved_are_refined_the_others_held(house_pair):
+    """``moving``: tb3_1 displaced but not among the robots refined stays where ``current``
+    holds it; among them, it comes back as when every robot is refined."""
+    grids, m = house_pair
+    robots = robots_of(grids)
+    T_link = m.placements()['tb3_1'].T
+    T_off = at_walls(robots['tb3_1'], T_link, se2(0.15, -0.13, math.radians(4.0)))
+    anchors = {'tb3_0': np.eye(3), 'tb3_1': T_off}
+    lattice = lattice_for(grids['tb3_0'])
+    held = joint.refine_placements(robots, anchors, 'tb3_0', lattice, 2, current={'tb3_1': T_link}, moving=set())
+    assert np.array_equal(held['tb3_1'], T_link)
+    refined = joint.refine_placements(robots, anchors, 'tb3_0', lattice, 2, current={'tb3_1': T_link},
+                                      moving={'tb3_1'})
+    everyone = joint.refine_placements(robots, anchors, 'tb3_0', lattice, 2)
+    assert np.array_equal(refined['tb3_1'], everyone['tb3_1'])
+
+
+def test_a_robot_is_refined_against_the_maps_it_can_meet_most():
+    """neighbours: the robots whose placed known boxes meet its own (grown by NEAR), at most
+    ``most``, those it meets most; a map far away is none of them."""
+    g = load_map(os.path.join(MAZE, 'tb3_0_map.yaml'))
+    names = ['a', 'b', 'c', 'd']
+    robots = robots_of({n: g for n in names})
+    r0, r1, c0, c1 = robots['a'].box
+    width = (c1 - c0) * g.resolution
+    poses = {'a': np.eye(3), 'b': se2(0.2 * width, 0, 0), 'c': se2(0.6 * width, 0, 0), 'd': se2(500.0, 0, 0)}
+    assert joint.neighbours(robots, poses, 'a') == ['b', 'c']
+    assert joint.neighbours(robots, poses, 'a', most=1) == ['b']
+    assert joint.neighbours(robots, poses, 'd') == []
