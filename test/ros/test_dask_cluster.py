@@ -129,6 +129,10 @@ class DaskCluster:
         return [(str(t['key']), t['worker']) for t in self.client.get_task_stream()
                 if str(t['key']).startswith(TASK) and t.get('status', 'OK') == 'OK']
 
+    def worker_of(self):
+        """The node's finished task -> the worker address that finished it."""
+        return dict(self.tasks())
+
     def per_worker(self):
         """Worker address -> how many of the node's tasks it finished."""
         out = {}
@@ -297,6 +301,11 @@ class TestDaskCluster(PiecesTest):
         print('tasks done by the cluster: before %s, after %s' % (before, after))
         self.assertGreater(after.get(survivor, 0), before.get(survivor, 0),
                            'the remaining worker did none of the cycle\'s tasks')
+        # what the killed worker had been given was done again by the other one
+        done_by = c.worker_of()
+        self.assertTrue(any(done_by.get(k) == survivor for k in busy[victim]),
+                        'none of the tasks the killed worker had (%s) was finished by the other: %s'
+                        % (busy[victim], {k: done_by.get(k) for k in busy[victim]}))
         self.assertEqual(list(c.client.scheduler_info()['workers']), [survivor])
         self.assertEqual(self.fallback_lines(), [], 'a worker lost is no cluster lost')
         self.steps.add(2)
