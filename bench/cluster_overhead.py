@@ -2,7 +2,7 @@
 """What a Dask cluster (``~dask_scheduler``) costs per pair against the local process pool, on
 the same pairs of real maps (not a timed test: measured and printed, never asserted).
 
-    python3 bench/cluster_overhead.py [--rows 'house 4' 'intel 4' 'intel-sized x4'] [--rounds 5] [-o FILE]
+    python3 bench/cluster_overhead.py [--rows 'house 4' 'intel 4' 'intel-sized x4'] [--rounds 9] [-o FILE]
 
 The rows are run_bench.py's (bench/inputs.py): ``house 4``, the four real Turtlebot3 gmapping
 maps of ../shared/data/tb3_house; ``intel 4``, the Intel map cut into four robots' maps at known
@@ -34,6 +34,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import itertools
+import json
 import logging
 import math
 import os
@@ -68,24 +69,32 @@ class LoopbackCluster:
     client of this script's own to ask the scheduler which tasks it finished."""
 
     def __init__(self, n_workers: int, timeout: float = 90.0):
-        import distributed
         self.tmp = tempfile.mkdtemp(prefix='mmm_cluster_overhead_')
         self.env = dict(os.environ, PYTHONPATH=os.pathsep.join(
             [SRC] + [p for p in os.environ.get('PYTHONPATH', '').split(os.pathsep) if p]))
         self.procs = []
+        self.client = None
+        try:
+            self._up(n_workers, timeout)
+        except BaseException:
+            self.stop()
+            raise
+
+    def _up(self, n_workers, timeout):
+        import distributed
         info = os.path.join(self.tmp, 'scheduler.json')
         self._start('scheduler', 'distributed.cli.dask_scheduler', '--host', '127.0.0.1', '--port', '0',
                     '--scheduler-file', info, '--no-dashboard', '--dashboard-address', '127.0.0.1:0')
         end = time.monotonic() + timeout
-        while not (os.path.exists(info) and os.path.getsize(info)):
-            if time.monotonic() > end or self.procs[0].poll() is not None:
-                self.stop()
-                raise RuntimeError('the Dask scheduler did not start (log: %s)' % self._log('scheduler'))
-            time.sleep(0.1)
-        time.sleep(0.2)   # (the file is written at once, but read it whole)
-        import json
-        with open(info) as f:
-            self.address = json.load(f)['address']
+        self.address = None
+        while self.address is None:
+            try:
+                with open(info) as f:
+                    self.address = json.load(f)['address']
+            except (OSError, ValueError, KeyError):   # not written yet, or not whole yet
+                if time.monotonic() > end or self.procs[0].poll() is not None:
+                    raise RuntimeError('the Dask scheduler did not start: %s' % self._log('scheduler')) from None
+                time.sleep(0.1)
         for i in range(n_workers):
             self._start('worker%d' % i, 'distributed.cli.dask_worker', self.address, '--nthreads', '1',
                         '--no-nanny', '--memory-limit', '0', '--no-dashboard', '--name', 'worker%d' % i,
@@ -93,8 +102,7 @@ class LoopbackCluster:
         self.client = distributed.Client(self.address, timeout=30, set_as_default=False)
         while len(self.client.scheduler_info()['workers']) < n_workers:
             if time.monotonic() > end:
-                self.stop()
-                raise RuntimeError('the Dask workers did not join within %.0f s' % timeout)
+                raise RuntimeError('the Dask workers did not join within %.0f s: %s' % (timeout, self._log('worker0')))
             time.sleep(0.2)
         self.client.get_task_stream()   # the scheduler records every task from now on
 
@@ -116,7 +124,7 @@ class LoopbackCluster:
                    if str(t['key']).startswith(TASK) and t.get('status', 'OK') == 'OK')
 
     def stop(self):
-        if getattr(self, 'client', None) is not None:
+        if self.client is not None:
             try:
                 self.client.close(timeout=10)
             except Exception:
@@ -199,7 +207,7 @@ def same(a, b) -> bool:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     ap.add_argument('--rows', nargs='+', default=ROWS, help='rows of bench/inputs.py (default: %(default)s)')
-    ap.add_argument('--rounds', type=int, default=5, help='timed rounds (default: %(default)s)')
+    ap.add_argument('--rounds', type=int, default=9, help='timed rounds (default: %(default)s)')
     ap.add_argument('-o', '--out', default=RESULTS, help='where the last line goes (default: %(default)s)')
     a = ap.parse_args(argv)
     try:
