@@ -177,7 +177,7 @@ class TestDaskCluster(PiecesTest):
     cluster = None
     launch = None
     tmp = None
-    steps = set()   # the steps done (each test needs the one before)
+    steps = set()   # the steps passed (each test needs the one before; all three: the logs removed)
 
     @classmethod
     def setUpClass(cls):
@@ -215,8 +215,10 @@ class TestDaskCluster(PiecesTest):
             cls.cluster = None
         if getattr(cls, 'player', None) is not None:
             super().tearDownClass()
-        if cls.tmp:
+        if cls.tmp and len(cls.steps) == 3:
             shutil.rmtree(cls.tmp, ignore_errors=True)
+        elif cls.tmp:
+            print('a step did not pass: the cluster\'s and the launch\'s logs are kept in %s' % cls.tmp)
 
     # -- what the test reads
     def fallback_lines(self):
@@ -330,6 +332,7 @@ class TestDaskCluster(PiecesTest):
         self.assertEqual(len(lines), 1, lines)
         self.assertIn(c.address, lines[0])
         self.assertIn('local workers', lines[0])
+        self.steps.add(3)
 
 
 if __name__ == '__main__':
