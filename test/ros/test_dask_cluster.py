@@ -191,10 +191,6 @@ class DaskCluster:
             out[w] = out.get(w, 0) + 1
         return out
 
-    def running(self):
-        """Worker address -> the node's tasks the scheduler has given it, now."""
-        return {w: [k for k in keys if str(k).startswith(TASK)] for w, keys in self.client.processing().items()}
-
     def arm(self, plugin):
         """Register a worker plugin on every worker."""
         self.client.register_worker_plugin(plugin, name=plugin.name)
