@@ -93,9 +93,12 @@ clean:
 # writes bench/results/{bench.json,bench.png,live.json}. m-explore is measured when ../shared is present.
 # (python3-matplotlib, for its plot, is one of APT_PKGS: build installs it)
 # Then bench/scale.py: teams of 8-64 robots whose maps grow live, merged in real time (about 15 min;
-# bench/results/scale.{json,txt}).
+# bench/results/scale.{json,txt}). Then bench/cluster_overhead.py: ms per pair through the local pool
+# and through a Dask cluster it starts on the loopback (~dask_scheduler), same results checked
+# (about 15 s; bench/results/cluster_overhead.txt).
 bench: build
-	@$(ROS_ENV) && cd $(CURDIR) && python3 bench/run_bench.py && python3 bench/live_gap.py && python3 bench/pinning_cost.py | tee bench/results/pinning_cost.txt && python3 bench/scale.py
+	@$(ROS_ENV) && cd $(CURDIR) && python3 bench/run_bench.py && python3 bench/live_gap.py && python3 bench/pinning_cost.py | tee bench/results/pinning_cost.txt && python3 bench/scale.py \
+	  && python3 bench/cluster_overhead.py -o bench/results/cluster_overhead.txt
 
 # The paper's experiment as a benchmark (not part of `make test`): 4 Turtlebot3s merged vs 1 alone,
 # every map made by real gmapping (slam_gmapping_replay, every scan), 5 seeds x 2 worlds (the AWS

@@ -381,6 +381,11 @@ def union_mask_of(world, pieces):
     return mask
 
 
+def union_known_of(world, pieces):
+    """How many known world cells the pieces ([(grid, T_world_grid)]) cover together."""
+    return int(((world.levels() != UNKNOWN) & (union_mask_of(world, pieces) > 0)).sum())
+
+
 def rviz_prior(T, frame):
     """What rviz's SetInitialPose tool (a robot's prior tool) publishes for a press at T's
     position dragged towards T's heading in the fixed frame ``frame``: its covariance is the
@@ -453,15 +458,19 @@ class PiecesTest(unittest.TestCase):
         merge of all the robots' whole maps has reached /map."""
         return abs(known_cells(msg) - self.union_known) < 0.05 * self.union_known
 
-    def assert_matches_truth(self, msg, label='merged'):
+    def assert_matches_truth(self, msg, label='merged', pieces=None):
         """The merged map ``msg`` is the union of the pieces seen from the reference's frame:
         its canvas within 4 cells of the one the pieces need, its walls on true walls, no free
-        cell on a wall, nothing outside the pieces, and (nearly) every known cell of the union."""
+        cell on a wall, nothing outside the pieces, and (nearly) every known cell of the union.
+        ``pieces``: other maps of the robots ([(grid, T_world_grid)], robot k's k-th, e.g. parts
+        of their pieces) than the whole pieces."""
         self.assertEqual(msg.header.frame_id, 'map')
-        (_, _, w, h), _ = expected_canvas(self.pieces, self.T_true)
+        union = self.union if pieces is None else union_mask_of(self.world, pieces)
+        pieces = self.pieces if pieces is None else pieces
+        (_, _, w, h), _ = expected_canvas(pieces, self.T_true)
         self.assertLessEqual(abs(msg.info.width - w), 4, 'width %d, expected %d' % (msg.info.width, w))
         self.assertLessEqual(abs(msg.info.height - h), 4, 'height %d, expected %d' % (msg.info.height, h))
-        sc = compare_with_truth(msg, self.world, self.T_world_map, self.union)
+        sc = compare_with_truth(msg, self.world, self.T_world_map, union)
         print('%s vs truth: %s' % (label, sc))
         self.assertGreaterEqual(sc['occ_precision'], 0.95, sc)
         self.assertLessEqual(sc['free_wrong'], 0.02, sc)
