@@ -37,6 +37,10 @@ from .state import link_dict, link_from_dict, placement_dict
 from .transforms import cell_to_metric, image_to_pose, pose_distance, pose_to_image
 from .workers import PairWorkers
 
+# a tracked link whose refined pose moved less than this (metres, radians) stays as it is: a
+# changed link places the team again (the pose graph, the joint refinement of its two robots)
+TRACK_MOVE = (0.01, math.radians(0.1))
+
 #: why the reference robot is the one it is (:meth:`MapMerger.reference_choice`)
 REF_PARAMETER = 'parameter'          # config.reference_robot
 REF_PROPOSED = 'proposed'            # propose_reference (the first of config.robots by name)
@@ -655,9 +659,9 @@ class MapMerger:
         facts = {n: self._map_facts(m) for n, m in maps.items()}
         with self._lock:
             self._cycle += 1
-            for n, m in maps.items():
-                if self._seen_versions.get(n) != m.version:
-                    self._since_slow[n] = self._since_slow.get(n, 0) + 1
+            changed = {n for n, m in maps.items() if self._seen_versions.get(n) != m.version}
+            for n in changed:
+                self._since_slow[n] = self._since_slow.get(n, 0) + 1
             self._seen_versions = {n: m.version for n, m in maps.items()}
             due = {n for n, k in self._since_slow.items() if k >= schedule.SLOW_EVERY and n in maps}
             for n in due:
@@ -666,14 +670,17 @@ class MapMerger:
             via = {n: p.via for n, p in self._placements.items()}
             return schedule.plan(facts, ref, dict(self._links), dict(self._tried), dict(self._aligned),
                                  set(self._track_failed), placed, via, due, maps[ref].grid.resolution,
-                                 dict(self._refreshed))
+                                 dict(self._refreshed), changed)
 
-    def _tracks(self, maps: Dict[str, RobotMap], plan: schedule.Plan) -> Dict[Tuple[str, str], np.ndarray]:
-        """The kept links to track, as transforms between the pairs' current grids' cells."""
+    def _tracks(self, maps: Dict[str, RobotMap], plan: schedule.Plan) -> Dict[Tuple[str, str], Tuple[np.ndarray, bool]]:
+        """The kept links to track, as transforms between the pairs' current grids' cells, and
+        whether to compute their covariance (a link without one: its walls said too little)."""
+        with self._lock:
+            uncertain = {k for k, e in self._links.items() if e.cov is None}
         out = {}
         for (a, b), T in plan.track.items():
             pa, ch = maps[a].grid, maps[b].grid
-            out[(a, b)] = pose_to_image(T, pa.resolution, pa.origin, ch.resolution, ch.origin)
+            out[(a, b)] = (pose_to_image(T, pa.resolution, pa.origin, ch.resolution, ch.origin), (a, b) in uncertain)
         return out
 
     def _keep(self, pa: RobotMap, ch: RobotMap, r: PairResult, plan: Optional[schedule.Plan] = None) -> None:
@@ -732,8 +739,18 @@ class MapMerger:
         self._track_failed.discard(key)
         self._results[key] = dataclasses.replace(r, matches=old.matches, inliers=old.inliers,
                                                  inlier_ratio=old.inlier_ratio)
+        if old.cov is None and r.cov is not None:
+            # a link whose walls said too little when aligned, pinned on its maps now
+            self._links[key] = dataclasses.replace(old, T=T, agreement=r.agreement, overlap=r.overlap,
+                                                   stamp=time.time(), cov=r.cov, bend=r.bend, centre=r.centre,
+                                                   parent_turn=r.parent_turn, child_turn=r.child_turn)
+            self.state_version += 1
+            return
         if r.overlap <= old.overlap:
             return                   # as links.replacement: the pose refined on more overlap only
+        d, a = pose_distance(T, old.T)
+        if d <= TRACK_MOVE[0] and a <= TRACK_MOVE[1]:
+            return                   # the link stands: placing the team again would move nothing
         self._links[key] = dataclasses.replace(old, T=T, agreement=r.agreement, overlap=r.overlap,
                                                stamp=time.time())
         self.state_version += 1

@@ -241,14 +241,15 @@ def align_pair(config: MergeConfig, pa: PairInput, ch: PairInput, seed: int = 0)
     return r
 
 
-def track_pair(config: MergeConfig, pa: PairInput, ch: PairInput, A: np.ndarray) -> PairResult:
+def track_pair(config: MergeConfig, pa: PairInput, ch: PairInput, A: np.ndarray, pin: bool = False) -> PairResult:
     """A kept link followed onto new versions of its maps, as a scan matcher tracks: ``A`` (cells
     of ``ch``'s grid -> cells of ``pa``'s grid: the kept link on the current grids) polished by
     ICP on the walls (:func:`refined`), then verified on the grids and gated as a feature
     hypothesis is, bar the features' gates (no features are matched: ``pa.features`` and
     ``ch.features`` may be None). Milliseconds where :func:`align_pair` takes a tenth of a
     second or more. The result's ``tracked`` is True; its inlier fields are zero (the merger keeps
-    the link's own)."""
+    the link's own). ``pin``: an accepted result's covariance computed too (:func:`_pin`, a few
+    milliseconds more; for a kept link that has none: its walls said too little when aligned)."""
     A0 = se2(-pa.offset[0], -pa.offset[1], 0.0) @ A @ se2(ch.offset[0], ch.offset[1], 0.0)
     h = PairResult(refined(config, pa, ch, A0) if config.refine else A0, tracked=True)
     tol = config.agreement_tolerance
@@ -263,6 +264,8 @@ def track_pair(config: MergeConfig, pa: PairInput, ch: PairInput, A: np.ndarray)
         h.reason = 'grids disagree: agreement %.2f < %.2f' % (h.agreement, config.min_agreement)
     else:
         h.accepted = True
+        if pin:
+            _pin(config, pa, ch, h)
     h.A = _grid_cells(h.A, pa, ch)
     return h
 

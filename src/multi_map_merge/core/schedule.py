@@ -4,10 +4,11 @@ A pair's work costs what its maps changed, not what the team holds:
 
 * a pair with a verified link whose maps changed is *tracked*: the kept link followed onto the
   new maps (:func:`pair.track_pair`: ICP and verification, milliseconds), as a scan matcher
-  tracks. A robot's links that are tracked are the one its placement goes through and its
-  :data:`TRACKED_PER_ROBOT` links whose maps grew most since they were last tracked or aligned
-  (in turn, so that a link found on the small maps of a team's start is refined on what they
-  grew to, while a robot's cost per new map stays bounded); the others stand as they are;
+  tracks. When a robot's map changed, its links that are tracked are the one its placement
+  goes through and its :data:`TRACKED_PER_ROBOT` links whose maps grew most since they were
+  last tracked or aligned (in turn, so that a link found on the small maps of a team's start is
+  refined on what they grew to, while a robot's cost per new map stays bounded); the others
+  stand as they are;
 * full alignment from features (:func:`pair.align_pair`, a tenth of a second or more) runs for
   a link whose tracking failed; for a pair without a link when one of the two robots is not
   placed yet (its map changed); and on a slow schedule, one pair per robot every
@@ -118,20 +119,24 @@ def box_overlap(a, b, resolution: float) -> float:
 
 
 def tracked_links(links: Mapping[Pair, object], via: Mapping[str, str], grown: Mapping[Pair, float],
-                  per_robot: int = TRACKED_PER_ROBOT) -> Set[Pair]:
-    """The links that are tracked: per robot, its ``per_robot`` links whose maps grew most
-    (``grown``: pair -> growth since it was last tracked or aligned, as :func:`growth`; ties:
-    the larger ``link.overlap``, then by name) and the link to the robot its placement goes
-    through (``via``: robot -> the robot it is placed through, '' for none)."""
+                  per_robot: int = TRACKED_PER_ROBOT, robots: Optional[Set[str]] = None) -> Set[Pair]:
+    """The links that are tracked: per robot of ``robots`` (those whose map changed; None:
+    every robot), its ``per_robot`` links whose maps grew most (``grown``: pair -> growth since
+    it was last tracked or aligned, as :func:`growth`; ties: the larger ``link.overlap``, then by
+    name) and the link to the robot its placement goes through (``via``: robot -> the robot it
+    is placed through, '' for none)."""
     by_robot: Dict[str, List[Tuple[float, int, Pair]]] = {}
     for k, e in links.items():
         for n in k:
-            by_robot.setdefault(n, []).append((grown.get(k, 1.0), int(getattr(e, 'overlap', 0)), k))
+            if robots is None or n in robots:
+                by_robot.setdefault(n, []).append((grown.get(k, 1.0), int(getattr(e, 'overlap', 0)), k))
     out: Set[Pair] = set()
     for ks in by_robot.values():
         ks.sort(key=lambda t: (-t[0], -t[1], t[2]))
         out.update(k for _, _, k in ks[:per_robot])
     for n, v in via.items():
+        if robots is not None and n not in robots:
+            continue
         if v and (v, n) in links:
             out.add((v, n))
         elif v and (n, v) in links:
@@ -157,7 +162,8 @@ def linked_to(ref: str, links: Iterable[Pair]) -> Set[str]:
 def plan(facts: Mapping[str, MapFacts], ref: str, links: Mapping[Pair, object],
          tried: Mapping[Pair, Tuple[int, int]], aligned: Mapping[Pair, Aligned], failed: Set[Pair],
          placements: Mapping[str, np.ndarray], via: Mapping[str, str], due: Set[str],
-         resolution: float, refreshed: Optional[Mapping[Pair, Tuple[int, int]]] = None) -> Plan:
+         resolution: float, refreshed: Optional[Mapping[Pair, Tuple[int, int]]] = None,
+         changed: Optional[Set[str]] = None) -> Plan:
     """The cycle's pair work (module docstring). ``facts``: every robot's map; ``links``: the
     kept links; ``tried``: per pair, the map versions last worked on; ``aligned``: per pair, its
     last alignment from features; ``failed``: links whose last tracking failed;
@@ -165,7 +171,8 @@ def plan(facts: Mapping[str, MapFacts], ref: str, links: Mapping[Pair, object],
     of ``links`` joins to ``ref`` count as placed); ``via``: robot
     -> the robot its placement goes through; ``due``: robots whose turn on the slow schedule
     it is (:data:`SLOW_EVERY`); ``resolution``: metres per cell; ``refreshed``: per link, its
-    maps' known cells when it was last tracked or aligned."""
+    maps' known cells when it was last tracked or aligned; ``changed``: the robots whose map is
+    new since the previous cycle, whose links are tracked (None: every robot)."""
     # placed by links: a robot at its prior (or placed by a link dropped since) still needs one
     reach = linked_to(ref, links)
     placements = {n: T for n, T in placements.items() if n in reach}
@@ -173,7 +180,8 @@ def plan(facts: Mapping[str, MapFacts], ref: str, links: Mapping[Pair, object],
         placements.setdefault(ref, np.eye(3))   # (the reference is placed from its first map on)
     boxes = {n: placed_box(f.corners, placements.get(n)) for n, f in facts.items()}
     refreshed = refreshed or {}
-    tracked = tracked_links(links, via, {k: growth(facts, k, refreshed.get(k)) for k in links})
+    tracked = tracked_links(links, via, {k: growth(facts, k, refreshed.get(k)) for k in links},
+                            TRACKED_PER_ROBOT, changed)
     work: List[Tuple[tuple, Pair]] = []
     track: Dict[Pair, np.ndarray] = {}
     unlinked: Dict[Pair, float] = {}   # placed pairs without a link that may be aligned: their expected overlap

@@ -119,11 +119,12 @@ class PairWorkers:
         return PairInput(m.name, m.version, levels, m.grid.resolution, m.grid.origin, None, self.uid, offset)
 
     def align_pairs(self, maps: Dict[str, RobotMap], todo: List[Tuple[str, str]],
-                    tracks: Optional[Dict[Tuple[str, str], np.ndarray]] = None,
+                    tracks: Optional[Dict[Tuple[str, str], Tuple[np.ndarray, bool]]] = None,
                     budget: float = 0.0) -> List[Optional[PairResult]]:
         """Every pair of ``todo`` (parent, child) worked on, the results in ``todo``'s order: a
         pair of ``tracks`` follows its kept link (``tracks[pair]``: cells of the child's grid ->
-        cells of the parent's, :func:`pair.track_pair`); the others are aligned from their
+        cells of the parent's, and whether to compute its covariance: :func:`pair.track_pair`);
+        the others are aligned from their
         features (:func:`pair.align_pair`, the features of the maps that changed computed first).
 
         ``budget`` (seconds, 0 = none): no alignment but the first starts after it has passed
@@ -159,7 +160,8 @@ class PairWorkers:
             raise
 
     def _align_pairs(self, maps: Dict[str, RobotMap], todo: List[Tuple[str, str]], pool,
-                     tracks: Dict[Tuple[str, str], np.ndarray], budget: float) -> List[Optional[PairResult]]:
+                     tracks: Dict[Tuple[str, str], Tuple[np.ndarray, bool]],
+                     budget: float) -> List[Optional[PairResult]]:
         c = self.config
         deadline = time.monotonic() + budget if budget > 0 else math.inf
         seeds = {ab: zlib.crc32(('%s|%s' % ab).encode()) for ab in todo}
@@ -169,7 +171,7 @@ class PairWorkers:
             for ab in todo:
                 if ab in tracks:
                     results[ab] = track_pair(c, self.track_input(maps[ab[0]]), self.track_input(maps[ab[1]]),
-                                             tracks[ab])
+                                             *tracks[ab])
             for i, ab in enumerate(detect):
                 if i and time.monotonic() > deadline:
                     break                     # (one alignment at least per cycle: progress)
@@ -179,7 +181,7 @@ class PairWorkers:
         for ab in todo:
             if ab in tracks:
                 running[pool.submit(run_task, track_pair, c, self.track_input(maps[ab[0]]),
-                                    self.track_input(maps[ab[1]]), tracks[ab])] = ('track', ab)
+                                    self.track_input(maps[ab[1]]), *tracks[ab])] = ('track', ab)
         needed = {n: maps[n] for ab in detect for n in ab}
         stale = self._stale(needed)
         # the biggest maps first: the last task to start should be a short one

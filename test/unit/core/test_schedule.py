@@ -99,6 +99,12 @@ def test_only_a_robots_largest_overlaps_and_its_placement_link_are_tracked():
     assert ('a', 'b') not in t
     # a placement through a link of small overlap: that link too
     assert ('a', 'b') in schedule.tracked_links(links, {'b': 'a'}, {}, per_robot=2)
+    # only the robots whose map changed choose: a cost per new map that the team's size does not grow
+    t = schedule.tracked_links(links, {'b': 'a', 'c': 'f'}, {}, per_robot=2, robots={'a'})
+    assert t == {('a', 'e'), ('a', 'f')}
+    # the links whose maps grew most since they were last refreshed, in turn
+    t = schedule.tracked_links(links, {}, {('a', 'b'): 3.0, ('a', 'c'): 2.0}, per_robot=2, robots={'a'})
+    assert t == {('a', 'b'), ('a', 'c')}
 
 
 def test_the_slow_schedule_aligns_a_changed_robots_oldest_link():
