@@ -152,7 +152,8 @@ class MapMerger:
         self._workers = PairWorkers(c)   # crops and features of the maps, the worker pool
         self._links: Dict[Tuple[str, str], Link] = {}
         # per pair: the map versions it was last worked on (tracked or aligned), its last
-        # alignment from features, and whether its link's last tracking failed (core/schedule.py)
+        # alignment from features, and the links to align again from features rather than track
+        # (their tracking failed, or a prior changed: core/schedule.py)
         self._tried: Dict[Tuple[str, str], Tuple[int, int]] = {}
         self._aligned: Dict[Tuple[str, str], schedule.Aligned] = {}
         self._refreshed: Dict[Tuple[str, str], Tuple[int, int]] = {}   # known cells at its last track or alignment
@@ -327,6 +328,9 @@ class MapMerger:
                 del self._tried[k]
             for k in [k for k in self._aligned if name in k]:
                 del self._aligned[k]
+            # its kept links too are aligned again from features (not tracked): under the new prior
+            # another solution may be the right one
+            self._track_failed.update(k for k in self._links if name in k)
             for k in [k for k in self._refreshed if name in k]:
                 del self._refreshed[k]
             tol_d, tol_a = self.config.initial_pose_tolerance
@@ -480,6 +484,7 @@ class MapMerger:
         for key in schedule.pairs_of(maps, ref):
             if done.get(key) is not None:
                 self._keep(maps[key[0]], maps[key[1]], done[key], plan)
+        self._planned(maps, plan)
         # (4) place every robot through its most reliable links; (6) that is its TF
         events += self._place(maps, ref)
         # links of little evidence that corroborate each other (a cycle closes): kept, placed again
@@ -659,18 +664,25 @@ class MapMerger:
         facts = {n: self._map_facts(m) for n, m in maps.items()}
         with self._lock:
             self._cycle += 1
+            # (against the last cycle that completed: a cycle that failed leaves its work to the next)
             changed = {n for n, m in maps.items() if self._seen_versions.get(n) != m.version}
-            for n in changed:
-                self._since_slow[n] = self._since_slow.get(n, 0) + 1
-            self._seen_versions = {n: m.version for n, m in maps.items()}
-            due = {n for n, k in self._since_slow.items() if k >= schedule.SLOW_EVERY and n in maps}
-            for n in due:
-                self._since_slow[n] = 0
+            due = {n for n in maps if self._since_slow.get(n, 0) + (n in changed) >= schedule.SLOW_EVERY}
             placed = {n: p.T for n, p in self._placements.items() if n in maps}
             via = {n: p.via for n, p in self._placements.items()}
             return schedule.plan(facts, ref, dict(self._links), dict(self._tried), dict(self._aligned),
                                  set(self._track_failed), placed, via, due, maps[ref].grid.resolution,
                                  dict(self._refreshed), changed)
+
+    def _planned(self, maps: Dict[str, RobotMap], plan: schedule.Plan) -> None:
+        """A cycle's plan carried out: the maps it saw are the ones the next compares against,
+        and the robots whose turn on the slow schedule it was start counting again."""
+        with self._lock:
+            for n, m in maps.items():
+                if self._seen_versions.get(n) != m.version:
+                    self._since_slow[n] = 0 if n in plan.due else self._since_slow.get(n, 0) + 1
+                elif n in plan.due:
+                    self._since_slow[n] = 0
+            self._seen_versions.update({n: m.version for n, m in maps.items()})
 
     def _tracks(self, maps: Dict[str, RobotMap], plan: schedule.Plan) -> Dict[Tuple[str, str], Tuple[np.ndarray, bool]]:
         """The kept links to track, as transforms between the pairs' current grids' cells, and

@@ -89,6 +89,7 @@ class Plan:
     todo: List[Pair] = field(default_factory=list)
     track: Dict[Pair, np.ndarray] = field(default_factory=dict)
     why: Dict[Pair, int] = field(default_factory=dict)
+    due: Set[str] = field(default_factory=set)   # the robots whose turn on the slow schedule it was
 
 
 def pairs_of(names: Iterable[str], ref: str) -> List[Pair]:
@@ -166,7 +167,8 @@ def plan(facts: Mapping[str, MapFacts], ref: str, links: Mapping[Pair, object],
          changed: Optional[Set[str]] = None) -> Plan:
     """The cycle's pair work (module docstring). ``facts``: every robot's map; ``links``: the
     kept links; ``tried``: per pair, the map versions last worked on; ``aligned``: per pair, its
-    last alignment from features; ``failed``: links whose last tracking failed;
+    last alignment from features; ``failed``: links to align again from features rather than
+    track (their last tracking failed, or a prior changed);
     ``placements``: robot -> pose (3x3) in the merged frame of the placed robots (those a chain
     of ``links`` joins to ``ref`` count as placed); ``via``: robot
     -> the robot its placement goes through; ``due``: robots whose turn on the slow schedule
@@ -187,12 +189,13 @@ def plan(facts: Mapping[str, MapFacts], ref: str, links: Mapping[Pair, object],
     unlinked: Dict[Pair, float] = {}   # placed pairs without a link that may be aligned: their expected overlap
     for k in pairs_of(facts, ref):
         a, b = k
+        if k in links and k in failed:
+            work.append(((FAILED_TRACK, 0.0), k))   # (on these maps too: tracking is not alignment)
+            continue
         if tried.get(k) == (facts[a].version, facts[b].version):
             continue                       # nothing new since it was last worked on
         if k in links:
-            if k in failed:
-                work.append(((FAILED_TRACK, 0.0), k))
-            elif k in tracked:
+            if k in tracked:
                 track[k] = links[k].T
             continue                       # (an untracked link stands until the slow schedule)
         if a in placements and b in placements:
@@ -225,7 +228,7 @@ def plan(facts: Mapping[str, MapFacts], ref: str, links: Mapping[Pair, object],
             track.pop(k, None)
             work.append(((SLOW_SCHEDULE, aligned[k].cycle if k in aligned else -1), k))
     work.sort(key=lambda t: (t[0], t[1]))
-    out = Plan(track=track)
+    out = Plan(track=track, due=set(due))
     out.todo = list(track) + [k for _, k in work]
     out.why = {k: p[0] for p, k in work}
     return out
