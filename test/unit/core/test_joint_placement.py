@@ -26,6 +26,16 @@ def at_walls(robot, T, D):
     return se2(c[0], c[1], 0.0) @ D @ se2(-c[0], -c[1], 0.0) @ T
 
 
+def displaced(house_pair):
+    """(robots, tb3_1's placement by its link, that placement moved 0.2 m and 4 degrees off at
+    its walls, the lattice) of the house pair."""
+    grids, m = house_pair
+    robots = robots_of(grids)
+    T_link = m.placements()['tb3_1'].T
+    T_off = at_walls(robots['tb3_1'], T_link, se2(0.15, -0.13, math.radians(4.0)))
+    return robots, T_link, T_off, lattice_for(grids['tb3_0'])
+
+
 @pytest.fixture(scope='module')
 def house_pair():
     """The last maps of tb3_0 and tb3_1 of the real gmapping bag (a pair that links on its
@@ -46,12 +56,8 @@ def test_a_displaced_placement_comes_back_and_agrees_better(house_pair):
     """tb3_1 moved 0.2 m and 4 degrees off its link: refined against tb3_0, it comes back to
     within a few centimetres and a degree of where its link put it, and the two maps agree
     better than at the displaced pose."""
-    grids, m = house_pair
-    robots = robots_of(grids)
-    T_link = m.placements()['tb3_1'].T
-    T_off = at_walls(robots['tb3_1'], T_link, se2(0.15, -0.13, math.radians(4.0)))
+    robots, T_link, T_off, lattice = displaced(house_pair)
     anchors = {'tb3_0': np.eye(3), 'tb3_1': T_off}
-    lattice = lattice_for(grids['tb3_0'])
     out = joint.refine_placements(robots, anchors, 'tb3_0', lattice, 2)
     assert np.array_equal(out['tb3_0'], np.eye(3))                  # the reference stays
     d_off, a_off = pose_distance(T_off, T_link)
@@ -139,12 +145,8 @@ def test_robots_without_overlap_keep_their_pose():
 def test_only_the_robots_that_moved_are_refined_the_others_held(house_pair):
     """``moving``: tb3_1 displaced but not among the robots refined stays where ``current``
     holds it; among them, it comes back as when every robot is refined."""
-    grids, m = house_pair
-    robots = robots_of(grids)
-    T_link = m.placements()['tb3_1'].T
-    T_off = at_walls(robots['tb3_1'], T_link, se2(0.15, -0.13, math.radians(4.0)))
+    robots, T_link, T_off, lattice = displaced(house_pair)
     anchors = {'tb3_0': np.eye(3), 'tb3_1': T_off}
-    lattice = lattice_for(grids['tb3_0'])
     held = joint.refine_placements(robots, anchors, 'tb3_0', lattice, 2, current={'tb3_1': T_link}, moving=set())
     assert np.array_equal(held['tb3_1'], T_link)
     refined = joint.refine_placements(robots, anchors, 'tb3_0', lattice, 2, current={'tb3_1': T_link},
