@@ -119,6 +119,12 @@ def _grid_cells(A: np.ndarray, pa: PairInput, ch: PairInput) -> np.ndarray:
     return se2(pa.offset[0], pa.offset[1], 0.0) @ A @ se2(-ch.offset[0], -ch.offset[1], 0.0)
 
 
+def _crop_cells(A: np.ndarray, pa: PairInput, ch: PairInput) -> np.ndarray:
+    """A transform between the grids' cells as one between the crops' cells (:func:`_grid_cells`
+    undone)."""
+    return se2(-pa.offset[0], -pa.offset[1], 0.0) @ A @ se2(ch.offset[0], ch.offset[1], 0.0)
+
+
 def compute_features(config: MergeConfig, levels: np.ndarray, factor: Optional[int] = None) -> Features:
     """(1) AKAZE features of a grid's levels, with the configured extractor (at ``factor``
     cells per pixel, or the one the map's known area calls for)."""
@@ -250,22 +256,14 @@ def track_pair(config: MergeConfig, pa: PairInput, ch: PairInput, A: np.ndarray,
     second or more. The result's ``tracked`` is True; its inlier fields are zero (the merger keeps
     the link's own). ``pin``: an accepted result's covariance computed too (:func:`_pin`, a few
     milliseconds more; for a kept link that has none: its walls said too little when aligned)."""
-    A0 = se2(-pa.offset[0], -pa.offset[1], 0.0) @ A @ se2(ch.offset[0], ch.offset[1], 0.0)
+    A0 = _crop_cells(A, pa, ch)
     h = PairResult(refined(config, pa, ch, A0) if config.refine else A0, tracked=True)
     tol = config.agreement_tolerance
     h.agreement, h.overlap = verify.agreement(pa.levels, ch.levels, h.A, tol, (_known(pa)[0], _known(ch)[0]),
                                               _walls(pa, tol))
-    contradiction = contradicts_prior(config, pa, ch, h.A)
-    if contradiction:
-        h.reason = contradiction
-    elif h.overlap < config.min_overlap_cells:
-        h.reason = 'overlap %d cells < %d' % (h.overlap, config.min_overlap_cells)
-    elif h.agreement < config.min_agreement:
-        h.reason = 'grids disagree: agreement %.2f < %.2f' % (h.agreement, config.min_agreement)
-    else:
-        h.accepted = True
-        if pin:
-            _pin(config, pa, ch, h)
+    _judge(config, pa, ch, h, features=False)
+    if h.accepted and pin:
+        _pin(config, pa, ch, h)
     h.A = _grid_cells(h.A, pa, ch)
     return h
 
@@ -331,9 +329,10 @@ def _origin_cell(p: PairInput) -> np.ndarray:
     return apply(inverse(cell_to_metric(p.resolution, p.origin)), np.zeros((1, 2)))[0] - np.array(p.offset, np.float64)
 
 
-def _judge(c: MergeConfig, pa: PairInput, ch: PairInput, h: PairResult) -> None:
+def _judge(c: MergeConfig, pa: PairInput, ch: PairInput, h: PairResult, features: bool = True) -> None:
     """Pass ``h`` (its inliers, inlier ratio, agreement and overlap set) through every gate:
-    ``h.accepted``, or ``h.reason`` for the first gate it fails."""
+    ``h.accepted``, or ``h.reason`` for the first gate it fails. ``features`` False: a tracked
+    link (:func:`track_pair`), which matched no features, passes the grids' gates only."""
     contradiction = contradicts_prior(c, pa, ch, h.A)
     if contradiction:
         h.reason = contradiction
@@ -341,6 +340,8 @@ def _judge(c: MergeConfig, pa: PairInput, ch: PairInput, h: PairResult) -> None:
         h.reason = 'overlap %d cells < %d' % (h.overlap, c.min_overlap_cells)
     elif h.agreement < c.min_agreement:
         h.reason = 'grids disagree: agreement %.2f < %.2f' % (h.agreement, c.min_agreement)
+    elif not features:
+        h.accepted = True
     elif h.inlier_ratio < c.min_inlier_ratio:
         h.reason = 'inlier ratio %.3f < %.3f' % (h.inlier_ratio, c.min_inlier_ratio)
     elif h.inliers < c.few_inliers and h.agreement < c.few_inliers_min_agreement:
@@ -359,8 +360,7 @@ def prior_guess(config: MergeConfig, pa: PairInput, ch: PairInput) -> Optional[n
     P = prior_link(config, pa, ch)
     if P is None:
         return None
-    A = pose_to_image(P, pa.resolution, pa.origin, ch.resolution, ch.origin)
-    return se2(-pa.offset[0], -pa.offset[1], 0.0) @ A @ se2(ch.offset[0], ch.offset[1], 0.0)
+    return _crop_cells(pose_to_image(P, pa.resolution, pa.origin, ch.resolution, ch.origin), pa, ch)
 
 
 # the widest window searched around a prior (metres, degrees): a prior given by a click in rviz
