@@ -173,6 +173,7 @@ class MapMerger:
         # (reference, per robot refined: (its map's key, its anchor)) of the joint refinement (_joint)
         self._joint_key = None
         self._joint_robots: Dict[str, Tuple[tuple, Optional[joint.Robot]]] = {}   # per robot, per map key
+        self._drift_covs: Dict[Tuple[str, str], tuple] = {}   # per link, its drift's covariance (placement.pin)
         # bend_maps: per bent map, (the map's version it was fitted to, its correction field)
         self._fields: Dict[str, Tuple[int, deform.Field]] = {}
         self._fields_key = None   # the maps and placements the fields were fitted to (_bend)
@@ -283,6 +284,8 @@ class MapMerger:
         self._joint_robots.pop(name, None)
         for k in [k for k in self._links if name in k]:
             del self._links[k]
+        for k in [k for k in list(self._drift_covs) if name in k]:
+            self._drift_covs.pop(k, None)
         for k in [k for k in self._restored if name in k]:
             del self._restored[k]
         if had:
@@ -450,6 +453,7 @@ class MapMerger:
             self._patches.clear()
             self._fields.clear()
             self._fields_key = None
+            self._drift_covs.clear()
 
     def _snapshot(self) -> Tuple[str, Dict[str, RobotMap]]:
         """(reference, maps at the reference's resolution); maps empty before the reference
@@ -805,7 +809,7 @@ class MapMerger:
         # every placement refined against every placed map it overlaps, when one was adopted anew
         new = self._joint(maps, new, old, ref)
         # how well each is pinned: its links' covariances, along its chain or by the graph
-        placement.pin(c, new, edges, ref, graph_key is not None)
+        placement.pin(c, new, edges, ref, graph_key is not None, self._drift_covs)
         with self._lock:
             if ref in maps and self._from_former_life_locked(maps[ref]):
                 return []            # the reference restarted meanwhile: every placement is void

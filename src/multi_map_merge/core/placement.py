@@ -121,17 +121,28 @@ def link_covs(edges: Links, links: list) -> List[Optional[np.ndarray]]:
     return [edges[(a, b)].cov for a, b, _, _ in links]
 
 
-def drift_covs(config: MergeConfig, edges: Links, links: list) -> List[Optional[np.ndarray]]:
+def drift_covs(config: MergeConfig, edges: Links, links: list,
+               cache: Optional[dict] = None) -> List[Optional[np.ndarray]]:
     """:func:`link_covs` with each map's drift between its origin and the link's overlap added
     (:func:`drift.link_covariance` at ``map_drift``, ``map_drift_yaw``, and the turns read off
-    the maps' walls; none for a link whose overlap's centre is unknown)."""
+    the maps' walls; none for a link whose overlap's centre is unknown). ``cache``: pair ->
+    (link, its drift's covariance), kept by the caller across cycles (a kept link is not
+    computed again; a link replaced is a new object)."""
     rate, yaw_rate = config.map_drift, math.radians(config.map_drift_yaw)
     out = []
     for (a, b, _, _), C in zip(links, link_covs(edges, links)):
         e = edges[(a, b)]
-        drifts = C is not None and e.centre is not None and (rate > 0 or yaw_rate > 0)
-        out.append(C + drift.link_covariance(e.centre, e.T, rate, yaw_rate, e.parent_turn, e.child_turn)
-                   if drifts else C)
+        if C is None or e.centre is None or not (rate > 0 or yaw_rate > 0):
+            out.append(C)
+            continue
+        hit = cache.get((a, b)) if cache is not None else None
+        if hit is not None and hit[0] is e and hit[1] == (rate, yaw_rate):
+            D = hit[2]
+        else:
+            D = drift.link_covariance(e.centre, e.T, rate, yaw_rate, e.parent_turn, e.child_turn)
+            if cache is not None:
+                cache[(a, b)] = (e, (rate, yaw_rate), D)
+        out.append(C + D)
     return out
 
 
@@ -157,14 +168,15 @@ def graph_poses(best: Dict[str, Placement], links: list, ref: str,
 
 
 def pin(config: MergeConfig, placements: Dict[str, Placement], edges: Links, ref: str,
-        graph: bool) -> None:
+        graph: bool, cache: Optional[dict] = None) -> None:
     """Set every placement's covariance and weak flag (in place): by all links among the placed
     robots when the pose graph placed them (``graph``), else along each robot's chain. Only
     links with a covariance count: a robot that only links without one reach (too few walls
     to search, a link from an older state file) has no covariance and is weakly pinned. Each
     link's covariance has the maps' drift from their origins to its overlap added
     (:func:`drift_covs`): what the placement's frame is known to, not how well the walls pin
-    the overlap (which weighs the links when they are solved)."""
+    the overlap (which weighs the links when they are solved). ``cache``: as
+    :func:`drift_covs`'."""
     linked = {n: p for n, p in placements.items() if p.via != PRIOR}
     if graph:
         keys = [k for k in edges if k[0] in linked and k[1] in linked]
@@ -186,7 +198,7 @@ def pin(config: MergeConfig, placements: Dict[str, Placement], edges: Links, ref
     keys = [k for k in keys if k[0] in tied]
     links = [(a, b, edges[(a, b)].T, 1.0) for a, b in keys]
     covs = posegraph.covariances({n: p.T for n, p in linked.items() if n in tied}, links, ref,
-                                 drift_covs(config, edges, links))
+                                 drift_covs(config, edges, links, cache))
     for n, p in placements.items():
         if n == ref:
             p.cov, p.weak_reason = None, ''

@@ -38,10 +38,16 @@ def optimise(poses: Dict[str, np.ndarray], links: List[Link], fixed: str,
 
     ``covs``: per link, the 3x3 covariance of (x, y, yaw) of its ``Z`` (x, y in ``a``'s frame)
     or None; a link with one is weighed by its information matrix instead of its weight and
-    the sigmas (a link through a corridor then pins its robot across it, not along it)."""
+    the sigmas (a link through a corridor then pins its robot across it, not along it); a
+    link without one among them counts as ``sigma_xy``, ``sigma_yaw``, unweighted, as in
+    :func:`covariances` (its walls said too little to pin it: its inliers must not weigh it
+    above the links they pinned)."""
     names = [n for n in sorted(poses) if n != fixed]
     keep = [lk[0] in poses and lk[1] in poses and lk[0] != lk[1] for lk in links]
     covs = [c for c, k in zip(covs, keep) if k] if covs is not None else None
+    if covs is not None and any(c is not None for c in covs):
+        fallback = np.diag([sigma_xy ** 2, sigma_xy ** 2, sigma_yaw ** 2])
+        covs = [fallback if c is None else c for c in covs]
     links = [lk for lk, k in zip(links, keep) if k]
     if not names or len(links) < len(names) + 1:     # a tree: nothing to average
         return dict(poses)
@@ -52,47 +58,13 @@ def optimise(poses: Dict[str, np.ndarray], links: List[Link], fixed: str,
     ib = np.array([idx[b] for _, b, _, _ in links])
     Zp = np.array([xyyaw(Z) for _, _, Z, _ in links], float)
     w = np.sqrt(np.array([lk[3] for lk in links], float))
-    cz, sz = np.cos(Zp[:, 2]), np.sin(Zp[:, 2])
-    E, N = len(links), len(names)
-    sqrt_info, has = _sqrt_information(Zp, covs)
+    N = len(names)
+    whiten = _whitening(Zp, covs, w, sigma_xy, sigma_yaw)
     for _ in range(iterations):
-        ta, tb = P[ia, :2], P[ib, :2]
-        ca, sa = np.cos(P[ia, 2]), np.sin(P[ia, 2])
-        dx, dy = tb[:, 0] - ta[:, 0], tb[:, 1] - ta[:, 1]
-        lx, ly = ca * dx + sa * dy, -sa * dx + ca * dy            # Ra^T (tb - ta)
-        ux, uy = lx - Zp[:, 0], ly - Zp[:, 1]
-        ex, ey = cz * ux + sz * uy, -sz * ux + cz * uy            # Rz^T (...)
-        eth = wrap_angle(P[ib, 2] - P[ia, 2] - Zp[:, 2])
-        r_raw = np.stack([ex, ey, eth], 1)
-        r = np.stack([ex / sigma_xy, ey / sigma_xy, eth / sigma_yaw], 1) * w[:, None]
-        # d(Ra^T d)/d(ta) = -Ra^T, /d(tb) = Ra^T, /d(yaw_a) = [[-sa, ca], [-ca, -sa]] d
-        Ra_T = np.stack([np.stack([ca, sa], 1), np.stack([-sa, ca], 1)], 1)     # (E, 2, 2)
-        Rz_T = np.stack([np.stack([cz, sz], 1), np.stack([-sz, cz], 1)], 1)
-        M = np.einsum('eij,ejk->eik', Rz_T, Ra_T)                              # Rz^T Ra^T
-        dth = np.stack([-sa * dx + ca * dy, -ca * dx - sa * dy], 1)           # dRa^T/dyaw d
-        dth = np.einsum('eij,ej->ei', Rz_T, dth)
-        J = np.zeros((E, 3, 3 * N))
-        J_raw = J                                   # (the unscaled Jacobian, filled below)
-        scale = np.array([1 / sigma_xy, 1 / sigma_xy, 1 / sigma_yaw])[:, None] * 1.0
-        for e_idx, (i_a, i_b) in enumerate(zip(ia, ib)):
-            if i_a > 0:
-                c = 3 * (i_a - 1)
-                J[e_idx, :2, c:c + 2] = -M[e_idx]
-                J[e_idx, :2, c + 2] = dth[e_idx]
-                J[e_idx, 2, c + 2] = -1.0
-            if i_b > 0:
-                c = 3 * (i_b - 1)
-                J[e_idx, :2, c:c + 2] = M[e_idx]
-                J[e_idx, 2, c + 2] = 1.0
-        J = J * scale[None] * w[:, None, None]
-        if sqrt_info is not None:
-            # links with a covariance: whitened by it (rows of the others as above)
-            r[has] = np.einsum('eij,ej->ei', sqrt_info[has], r_raw[has])
-            J[has] = np.einsum('eij,ejk->eik', sqrt_info[has], J_raw[has])
-        J = J.reshape(3 * E, 3 * N)
-        r = r.reshape(-1)
-        H = J.T @ J + 1e-9 * np.eye(3 * N)
-        dxv = -np.linalg.solve(H, J.T @ r)
+        r = np.einsum('eij,ej->ei', whiten, _errors(P, ia, ib, Zp))
+        Ja, Jb = _jacobians(P, ia, ib, Zp, whiten)
+        H, g = _normal_equations(Ja, Jb, ia, ib, N, r)
+        dxv = -np.linalg.solve(H + 1e-9 * np.eye(3 * N), g)
         P[1:] += dxv.reshape(N, 3)
         P[1:, 2] = wrap_angle(P[1:, 2])
         if np.max(np.abs(dxv)) < 1e-8:
@@ -112,14 +84,73 @@ def _sqrt_information(Zp: np.ndarray, covs: Optional[List[Optional[np.ndarray]]]
     E = Zp.shape[0]
     L = np.zeros((E, 3, 3))
     has = np.array([c is not None for c in covs])
-    for e, C in enumerate(covs):
-        if C is None:
-            continue
-        cz, sz = math.cos(Zp[e, 2]), math.sin(Zp[e, 2])
-        Q = np.array([[cz, sz, 0.0], [-sz, cz, 0.0], [0.0, 0.0, 1.0]])
-        info = np.linalg.inv(Q @ np.asarray(C, float) @ Q.T)
-        L[e] = np.linalg.cholesky(0.5 * (info + info.T)).T      # upper: L^T L = info
+    C = np.array([np.asarray(c, float) for c in covs if c is not None])
+    cz, sz = np.cos(Zp[has, 2]), np.sin(Zp[has, 2])
+    Q = np.zeros((len(C), 3, 3))
+    Q[:, 0, 0], Q[:, 0, 1], Q[:, 1, 0], Q[:, 1, 1], Q[:, 2, 2] = cz, sz, -sz, cz, 1.0
+    info = np.linalg.inv(Q @ C @ Q.transpose(0, 2, 1))
+    L[has] = np.linalg.cholesky(0.5 * (info + info.transpose(0, 2, 1))).transpose(0, 2, 1)   # upper: L^T L = info
     return L, has
+
+
+def _whitening(Zp: np.ndarray, covs: Optional[List[Optional[np.ndarray]]], w: np.ndarray,
+               sigma_xy: float, sigma_yaw: float) -> np.ndarray:
+    """Per link (E, 3, 3) the matrix that whitens its error: its square-root information
+    (:func:`_sqrt_information`) where it has a covariance, else its weight's square root ``w``
+    over the sigmas."""
+    out = np.zeros((len(Zp), 3, 3))
+    out[:, 0, 0] = out[:, 1, 1] = w / sigma_xy
+    out[:, 2, 2] = w / sigma_yaw
+    L, has = _sqrt_information(Zp, covs)
+    if L is not None:
+        out[has] = L[has]
+    return out
+
+
+def _errors(P: np.ndarray, ia: np.ndarray, ib: np.ndarray, Zp: np.ndarray) -> np.ndarray:
+    """Every link's error (E, 3) at the poses ``P`` ((x, y, yaw) per frame): :func:`link_error`."""
+    ca, sa = np.cos(P[ia, 2]), np.sin(P[ia, 2])
+    cz, sz = np.cos(Zp[:, 2]), np.sin(Zp[:, 2])
+    dx, dy = P[ib, 0] - P[ia, 0], P[ib, 1] - P[ia, 1]
+    ux, uy = ca * dx + sa * dy - Zp[:, 0], -sa * dx + ca * dy - Zp[:, 1]      # Ra^T (tb - ta) - tz
+    return np.stack([cz * ux + sz * uy, -sz * ux + cz * uy, wrap_angle(P[ib, 2] - P[ia, 2] - Zp[:, 2])], 1)
+
+
+def _jacobians(P: np.ndarray, ia: np.ndarray, ib: np.ndarray, Zp: np.ndarray,
+               whiten: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
+    """(d e / d pose_a, d e / d pose_b) per link (E, 3, 3 each), whitened: with Rz^T Ra^T = M,
+    d(Ra^T d)/d(ta) = -Ra^T, /d(tb) = Ra^T, /d(yaw_a) = [[-sa, ca], [-ca, -sa]] d."""
+    ca, sa = np.cos(P[ia, 2]), np.sin(P[ia, 2])
+    cz, sz = np.cos(Zp[:, 2]), np.sin(Zp[:, 2])
+    dx, dy = P[ib, 0] - P[ia, 0], P[ib, 1] - P[ia, 1]
+    Rz_T = np.stack([np.stack([cz, sz], 1), np.stack([-sz, cz], 1)], 1)
+    M = Rz_T @ np.stack([np.stack([ca, sa], 1), np.stack([-sa, ca], 1)], 1)
+    dth = np.einsum('eij,ej->ei', Rz_T, np.stack([-sa * dx + ca * dy, -ca * dx - sa * dy], 1))
+    Ja = np.zeros((len(Zp), 3, 3))
+    Jb = np.zeros((len(Zp), 3, 3))
+    Ja[:, :2, :2], Ja[:, :2, 2], Ja[:, 2, 2] = -M, dth, -1.0
+    Jb[:, :2, :2], Jb[:, 2, 2] = M, 1.0
+    return whiten @ Ja, whiten @ Jb
+
+
+def _normal_equations(Ja: np.ndarray, Jb: np.ndarray, ia: np.ndarray, ib: np.ndarray, N: int,
+                      r: Optional[np.ndarray] = None) -> Tuple[np.ndarray, Optional[np.ndarray]]:
+    """(H = J^T J (3N x 3N), g = J^T r) over every link, from each link's two blocks (frame 0
+    is the fixed one: it has no columns); g None without residuals ``r``."""
+    JaT, JbT = Ja.transpose(0, 2, 1), Jb.transpose(0, 2, 1)
+    H = np.zeros((N + 1, N + 1, 3, 3))
+    np.add.at(H, (ia, ia), JaT @ Ja)
+    np.add.at(H, (ib, ib), JbT @ Jb)
+    ab = JaT @ Jb
+    np.add.at(H, (ia, ib), ab)
+    np.add.at(H, (ib, ia), ab.transpose(0, 2, 1))
+    H = H.transpose(0, 2, 1, 3).reshape(3 * (N + 1), 3 * (N + 1))[3:, 3:]
+    if r is None:
+        return H, None
+    g = np.zeros((N + 1, 3))
+    np.add.at(g, ia, np.einsum('eij,ej->ei', JaT, r))
+    np.add.at(g, ib, np.einsum('eij,ej->ei', JbT, r))
+    return H, g[1:].reshape(-1)
 
 
 def covariances(poses: Dict[str, np.ndarray], links: List[Link], fixed: str,
@@ -144,27 +175,9 @@ def covariances(poses: Dict[str, np.ndarray], links: List[Link], fixed: str,
     Zp = np.array([xyyaw(Z) for _, _, Z, _ in links], float)
     L, _ = _sqrt_information(Zp, covs)
     N = len(names)
-    H = np.zeros((3 * N, 3 * N))
-    for e, (a, b, _, _) in enumerate(links):
-        ia, ib = idx[a], idx[b]
-        cz, sz = math.cos(Zp[e, 2]), math.sin(Zp[e, 2])
-        ca, sa = math.cos(P[ia, 2]), math.sin(P[ia, 2])
-        dx, dy = P[ib, 0] - P[ia, 0], P[ib, 1] - P[ia, 1]
-        Rz_T = np.array([[cz, sz], [-sz, cz]])
-        M = Rz_T @ np.array([[ca, sa], [-sa, ca]])
-        dth = Rz_T @ np.array([-sa * dx + ca * dy, -ca * dx - sa * dy])
-        J = np.zeros((3, 3 * N))
-        if ia > 0:
-            c = 3 * (ia - 1)
-            J[:2, c:c + 2] = -M
-            J[:2, c + 2] = dth
-            J[2, c + 2] = -1.0
-        if ib > 0:
-            c = 3 * (ib - 1)
-            J[:2, c:c + 2] = M
-            J[2, c + 2] = 1.0
-        J = L[e] @ J
-        H += J.T @ J
+    ia = np.array([idx[a] for a, _, _, _ in links])
+    ib = np.array([idx[b] for _, b, _, _ in links])
+    H, _ = _normal_equations(*_jacobians(P, ia, ib, Zp, L), ia, ib, N)
     # frames with no path of links to the fixed one have no information: left out
     free = [i for i in range(N) if H[3 * i:3 * i + 3, 3 * i:3 * i + 3].diagonal().min() > 0]
     sel = np.concatenate([np.arange(3 * i, 3 * i + 3) for i in free]) if free else np.zeros(0, int)

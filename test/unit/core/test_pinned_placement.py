@@ -35,6 +35,22 @@ def test_information_lets_the_pinned_links_place_the_corridor_robot():
     assert np.array_equal(posegraph.optimise(poses, links, 'r', covs=[None, None, None])['a'], by_count['a'])
 
 
+def test_a_link_without_covariance_does_not_outweigh_the_pinned_ones():
+    """Among links with covariances, one without (its walls said too little) counts as the
+    fallback sigmas, unweighted, as placements' covariances count it: its many inliers must not
+    make it the strongest link. Here it is 0.3 m off along y, with 50 inliers."""
+    links = links_triangle(0.0)
+    links[0] = ('r', 'a', se2(5.0, 0.3, 0.0), 50.0)
+    poses = {'r': np.eye(3), 'a': links[0][2], 'b': links[1][2]}
+    wide = np.diag([0.03 ** 2, 0.03 ** 2, math.radians(0.3) ** 2])
+    out = posegraph.optimise(poses, links, 'r', covs=[None, wide, wide])
+    y = xyyaw(out['a'])[1]
+    # by information: 0.05 m for the link, 0.03 m twice for the other path: 0.3 * 18 / 43 =
+    # 0.13 m by positions alone, a little more with the other path's turns over its 5 m levers.
+    # Weighed by its inliers the link would take a 7 mm sigma and pull a nearly all the way
+    assert 0.1 < y < 0.18, y
+
+
 def test_placement_covariance_weak_alone_pinned_with_a_second_link():
     links = links_triangle(0.0)
     poses = {'r': np.eye(3), 'a': se2(5.0, 0.0, 0.0), 'b': se2(0.0, 5.0, 0.0)}
