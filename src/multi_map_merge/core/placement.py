@@ -156,13 +156,11 @@ def graph_poses(best: Dict[str, Placement], links: list, ref: str,
         return None
     opt = posegraph.optimise({n: p.T for n, p in best.items()}, links, ref, covs=covs)
     covs = covs if covs is not None else [None] * len(links)
-    for (a, b, Z, _), C in zip(links, covs):
-        if a not in opt or b not in opt:
-            continue
-        e = posegraph.link_error(opt[a], opt[b], Z)
-        if math.hypot(e[0], e[1]) <= GRAPH_GATE[0] and abs(e[2]) <= GRAPH_GATE[1]:
-            continue
-        if C is None or posegraph.mahalanobis2(e, Z, C) > GRAPH_GATE_CHI2:
+    inside = [k for k, (a, b, _, _) in enumerate(links) if a in opt and b in opt]
+    errors = posegraph.link_errors(opt, [links[k] for k in inside])
+    beyond = (np.hypot(errors[:, 0], errors[:, 1]) > GRAPH_GATE[0]) | (np.abs(errors[:, 2]) > GRAPH_GATE[1])
+    for k, e in zip(np.asarray(inside, int)[beyond], errors[beyond]):
+        if covs[k] is None or posegraph.mahalanobis2(e, links[k][2], covs[k]) > GRAPH_GATE_CHI2:
             return None
     return opt
 

@@ -28,6 +28,18 @@ def link_error(Ta: np.ndarray, Tb: np.ndarray, Z: np.ndarray) -> np.ndarray:
     return np.array([x, y, yaw])
 
 
+def link_errors(poses: Dict[str, np.ndarray], links: List[Link]) -> np.ndarray:
+    """Every link's error (E, 3; as :func:`link_error`) at ``poses``; its frames must be in
+    ``poses``."""
+    names = sorted(poses)
+    idx = {n: i for i, n in enumerate(names)}
+    P = np.array([xyyaw(poses[n]) for n in names], float).reshape(-1, 3)
+    ia = np.array([idx[a] for a, _, _, _ in links], int)
+    ib = np.array([idx[b] for _, b, _, _ in links], int)
+    Zp = np.array([xyyaw(Z) for _, _, Z, _ in links], float).reshape(-1, 3)
+    return _errors(P, ia, ib, Zp)
+
+
 def optimise(poses: Dict[str, np.ndarray], links: List[Link], fixed: str,
              sigma_xy: float = 0.05, sigma_yaw: float = math.radians(0.5),
              iterations: int = 20, covs: Optional[List[Optional[np.ndarray]]] = None) -> Dict[str, np.ndarray]:

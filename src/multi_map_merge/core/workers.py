@@ -106,17 +106,13 @@ class PairWorkers:
             return None
         return _pool(c.workers)
 
-    def input(self, m: RobotMap) -> PairInput:
-        """A map as one side of a pair (its crop and features)."""
+    def input(self, m: RobotMap, features: bool = True) -> PairInput:
+        """A map as one side of a pair: its crop, and its features unless ``features`` is False
+        (one side of a tracked pair, :func:`pair.track_pair`: a map only tracked is never
+        described)."""
         levels, offset = self.crop(m)
         return PairInput(m.name, m.version, levels, m.grid.resolution, m.grid.origin,
-                         self.features_of(m), self.uid, offset)
-
-    def track_input(self, m: RobotMap) -> PairInput:
-        """A map as one side of a tracked pair (:func:`pair.track_pair`): its crop, no features
-        (a map only tracked is never described)."""
-        levels, offset = self.crop(m)
-        return PairInput(m.name, m.version, levels, m.grid.resolution, m.grid.origin, None, self.uid, offset)
+                         self.features_of(m) if features else None, self.uid, offset)
 
     def align_pairs(self, maps: Dict[str, RobotMap], todo: List[Tuple[str, str]],
                     tracks: Optional[Dict[Tuple[str, str], Tuple[np.ndarray, bool]]] = None,
@@ -170,7 +166,7 @@ class PairWorkers:
         if pool is None:
             for ab in todo:
                 if ab in tracks:
-                    results[ab] = track_pair(c, self.track_input(maps[ab[0]]), self.track_input(maps[ab[1]]),
+                    results[ab] = track_pair(c, self.input(maps[ab[0]], False), self.input(maps[ab[1]], False),
                                              *tracks[ab])
             for i, ab in enumerate(detect):
                 if i and time.monotonic() > deadline:
@@ -180,8 +176,8 @@ class PairWorkers:
         running: Dict[object, tuple] = {}    # future -> ('track' | 'pair', pair) or ('features', map)
         for ab in todo:
             if ab in tracks:
-                running[pool.submit(run_task, track_pair, c, self.track_input(maps[ab[0]]),
-                                    self.track_input(maps[ab[1]]), *tracks[ab])] = ('track', ab)
+                running[pool.submit(run_task, track_pair, c, self.input(maps[ab[0]], False),
+                                    self.input(maps[ab[1]], False), *tracks[ab])] = ('track', ab)
         needed = {n: maps[n] for ab in detect for n in ab}
         stale = self._stale(needed)
         # the biggest maps first: the last task to start should be a short one
