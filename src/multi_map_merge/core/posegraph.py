@@ -16,28 +16,27 @@ from typing import Dict, List, Optional, Tuple
 
 import numpy as np
 
-from .transforms import inverse, se2, wrap_angle, xyyaw
+from .transforms import se2, wrap_angle, xyyaw
 
 Link = Tuple[str, str, np.ndarray, float]   # (a, b, Z_ab 3x3, weight)
 
 
-def link_error(Ta: np.ndarray, Tb: np.ndarray, Z: np.ndarray) -> np.ndarray:
-    """A link's error (x, y in metres, yaw in radians) at poses ``Ta``, ``Tb``: what the poses
-    say b sits at, in ``Z``'s frame (zero where they agree with the link)."""
-    x, y, yaw = xyyaw(inverse(Z) @ inverse(Ta) @ Tb)
-    return np.array([x, y, yaw])
-
-
 def link_errors(poses: Dict[str, np.ndarray], links: List[Link]) -> np.ndarray:
-    """Every link's error (E, 3; as :func:`link_error`) at ``poses``; its frames must be in
-    ``poses``."""
-    names = sorted(poses)
-    idx = {n: i for i, n in enumerate(names)}
-    P = np.array([xyyaw(poses[n]) for n in names], float).reshape(-1, 3)
+    """Every link's error (E, 3: x, y in metres, yaw in radians) at ``poses``: what the poses
+    say b sits at, in ``Z``'s frame (zero where they agree with the link); its frames must be
+    in ``poses``."""
+    return _errors(*_arrays(sorted(poses), poses, links))
+
+
+def _arrays(order: List[str], poses: Dict[str, np.ndarray], links: List[Link]):
+    """(P: (x, y, yaw) of each frame of ``order``, ia / ib: each link's frames' rows of P, Zp:
+    each link's (x, y, yaw))."""
+    idx = {n: i for i, n in enumerate(order)}
+    P = np.array([xyyaw(poses[n]) for n in order], float).reshape(-1, 3)
     ia = np.array([idx[a] for a, _, _, _ in links], int)
     ib = np.array([idx[b] for _, b, _, _ in links], int)
     Zp = np.array([xyyaw(Z) for _, _, Z, _ in links], float).reshape(-1, 3)
-    return _errors(P, ia, ib, Zp)
+    return P, ia, ib, Zp
 
 
 def optimise(poses: Dict[str, np.ndarray], links: List[Link], fixed: str,
@@ -63,12 +62,8 @@ def optimise(poses: Dict[str, np.ndarray], links: List[Link], fixed: str,
     links = [lk for lk, k in zip(links, keep) if k]
     if not names or len(links) < len(names) + 1:     # a tree: nothing to average
         return dict(poses)
-    order = [fixed] + names
-    idx = {n: i for i, n in enumerate(order)}          # column block i-1; the fixed one has none
-    P = np.array([xyyaw(poses[n]) for n in order], float)
-    ia = np.array([idx[a] for a, _, _, _ in links])
-    ib = np.array([idx[b] for _, b, _, _ in links])
-    Zp = np.array([xyyaw(Z) for _, _, Z, _ in links], float)
+    # (frame 0 is the fixed one: frame i > 0 has column block i-1)
+    P, ia, ib, Zp = _arrays([fixed] + names, poses, links)
     w = np.sqrt(np.array([lk[3] for lk in links], float))
     N = len(names)
     whiten = _whitening(Zp, covs, w, sigma_xy, sigma_yaw)
@@ -82,8 +77,8 @@ def optimise(poses: Dict[str, np.ndarray], links: List[Link], fixed: str,
         if np.max(np.abs(dxv)) < 1e-8:
             break
     out = dict(poses)
-    for n in names:
-        out[n] = se2(*P[idx[n]])
+    for i, n in enumerate(names, 1):
+        out[n] = se2(*P[i])
     return out
 
 
@@ -120,7 +115,8 @@ def _whitening(Zp: np.ndarray, covs: Optional[List[Optional[np.ndarray]]], w: np
 
 
 def _errors(P: np.ndarray, ia: np.ndarray, ib: np.ndarray, Zp: np.ndarray) -> np.ndarray:
-    """Every link's error (E, 3) at the poses ``P`` ((x, y, yaw) per frame): :func:`link_error`."""
+    """Every link's error (E, 3) at the poses ``P`` ((x, y, yaw) per frame): with ``Z`` the link,
+    ``e_xy = Rz^T (Ra^T (tb - ta) - tz)``, ``e_yaw = yaw_b - yaw_a - yaw_z``."""
     ca, sa = np.cos(P[ia, 2]), np.sin(P[ia, 2])
     cz, sz = np.cos(Zp[:, 2]), np.sin(Zp[:, 2])
     dx, dy = P[ib, 0] - P[ia, 0], P[ib, 1] - P[ia, 1]
@@ -181,14 +177,9 @@ def covariances(poses: Dict[str, np.ndarray], links: List[Link], fixed: str,
     covs = [fallback if c is None else c for c, k in zip(covs, keep) if k]
     if not names or not links:
         return {}
-    order = [fixed] + names
-    idx = {n: i for i, n in enumerate(order)}
-    P = np.array([xyyaw(poses[n]) for n in order], float)
-    Zp = np.array([xyyaw(Z) for _, _, Z, _ in links], float)
+    P, ia, ib, Zp = _arrays([fixed] + names, poses, links)
     L, _ = _sqrt_information(Zp, covs)
     N = len(names)
-    ia = np.array([idx[a] for a, _, _, _ in links])
-    ib = np.array([idx[b] for _, b, _, _ in links])
     H, _ = _normal_equations(*_jacobians(P, ia, ib, Zp, L), ia, ib, N)
     # frames with no path of links to the fixed one have no information: left out
     free = [i for i in range(N) if H[3 * i:3 * i + 3, 3 * i:3 * i + 3].diagonal().min() > 0]
@@ -201,7 +192,7 @@ def covariances(poses: Dict[str, np.ndarray], links: List[Link], fixed: str,
 
 
 def mahalanobis2(e: np.ndarray, Z: np.ndarray, C: np.ndarray) -> float:
-    """Squared Mahalanobis distance of a link's error ``e`` (:func:`link_error`) under the
+    """Squared Mahalanobis distance of a link's error ``e`` (:func:`link_errors`) under the
     link's covariance ``C`` (of its ``Z``'s x, y, yaw; x, y in the link's parent frame)."""
     L, _ = _sqrt_information(np.array([xyyaw(Z)], float), [C])
     w = L[0] @ np.asarray(e, float)
@@ -210,10 +201,8 @@ def mahalanobis2(e: np.ndarray, Z: np.ndarray, C: np.ndarray) -> float:
 
 def worst_residual(poses: Dict[str, np.ndarray], links: List[Link]) -> Optional[Tuple[float, float]]:
     """Largest (metres, radians) disagreement of a link with the poses (None without links)."""
-    worst = None
-    for a, b, Z, _ in links:
-        if a in poses and b in poses:
-            e = link_error(poses[a], poses[b], Z)
-            cur = (math.hypot(e[0], e[1]), abs(e[2]))
-            worst = cur if worst is None else (max(worst[0], cur[0]), max(worst[1], cur[1]))
-    return worst
+    links = [lk for lk in links if lk[0] in poses and lk[1] in poses]
+    if not links:
+        return None
+    e = link_errors(poses, links)
+    return float(np.hypot(e[:, 0], e[:, 1]).max()), float(np.abs(e[:, 2]).max())
