@@ -31,7 +31,10 @@ The merger runs as the node runs it, in three threads of this process: estimatio
 (``estimate()``) back to back, each taking the newest maps (the node's estimation thread with no
 rate limit; a cycle starts as soon as a map arrived since the previous one started: a cycle with
 nothing new computes nothing, and waiting for news instead of spinning keeps the CPU for the work
-measured); compositing (``compose()``, the node's compositing thread: again after half a merge
+measured); while no map is new, the spare time refreshes the stalest links
+(``refresh(REFRESH_SLICE)``, a slice at a time, as the node spends its time between cycles:
+``~refresh_links``; not counted in a round's cost, but a map that arrives during a slice waits
+for it, which the staleness holds); compositing (``compose()``, the node's compositing thread: again after half a merge
 period); publishing every merge period (``1 / merge_rate``, 0.5 s: the node's /map timer) the
 newest composited grid when it is a new one (``ros.convert.grid_to_msg`` and the message
 serialised, as the node sends it; timed without it when rospy is not importable).
@@ -105,6 +108,7 @@ GROW_FROM = 0.35      # of the robot's reach (farthest known cell of its window)
 GROW_S = 90.0         # s of robot time until the robot's whole window is known
 START_WITHIN = 0.3    # of the window's reach: where a robot may start, from the window's known centre
 FLIPS = 200           # known cells flipped free <-> occupied in every version (as bench/soak.py)
+REFRESH_SLICE = 0.25  # s: spare time spent refreshing links at a time (a new map waits at most this)
 MARGIN = 20           # cells of unknown kept around the known box (gmapping's canvas has some)
 WINDOW = 0.6          # of the building's known box, per robot (as run_bench.py's intel-sized rows)
 COLD_CAP = 0.5        # of --max-minutes: the cold start ends then even if a robot is still unplaced
@@ -336,6 +340,10 @@ def detail_lines(run: dict, s: dict) -> List[str]:
         out.append('  estimate() after the cold start: %s s in all: %s' % (
             fmt_s(br['estimate']), ', '.join('%s %s s' % (k, fmt_s(v)) for k, v in sorted(br.items())
                                              if k != 'estimate')))
+    fresh = [r for r in run.get('refreshes', []) if run['cold_end'] is not None and r['start'] >= run['cold_end']]
+    if fresh:
+        out.append('  refresh (spare time, after the cold start): %d slices, %s s in all, %d links tracked again' % (
+            len(fresh), fmt_s(sum(r['end'] - r['start'] for r in fresh)), sum(r['pairs'] for r in fresh)))
     errs = run['errors']
     if errs:
         worst = max(errs, key=lambda r: errs[r][0])
@@ -614,16 +622,28 @@ def run_team(robots: int, rounds: int, world_name: str, seed: int, max_s: float,
     feeder.start()
     outputs.start()
     cycles: List[dict] = []
+    refreshes: List[dict] = []
     seen = 0
     cold_end, cold_placed = None, 0
     joiner_at = joiner_placed = None
     stop_why = ''
     try:
         while True:
-            with feeder.cond:
-                while feeder.seq == seen and feeder.now() < max_s:
-                    feeder.cond.wait(0.2)
-                seen = feeder.seq
+            while True:
+                with feeder.cond:
+                    if feeder.seq != seen or feeder.now() >= max_s:
+                        seen = feeder.seq
+                        break
+                # nothing new: spare time refreshes the stalest links, a slice at a time
+                start = feeder.now()
+                merger.refresh(REFRESH_SLICE)
+                spent, pairs = timers.take()
+                if pairs:
+                    refreshes.append({'start': start, 'end': feeder.now(), 'pairs': pairs, 'steps': spent})
+                    continue
+                with feeder.cond:
+                    if feeder.seq == seen:
+                        feeder.cond.wait(0.2)
             if feeder.now() >= max_s:
                 stop_why = 'time limit (%.0f s)' % max_s
                 break
@@ -705,7 +725,7 @@ def run_team(robots: int, rounds: int, world_name: str, seed: int, max_s: float,
             'serialised': outputs.serialise is not None,
             'composes': len(outputs.compose_s), 'compose_p50_s': percentile(outputs.compose_s, 50),
             'compose_max_s': max(outputs.compose_s) if outputs.compose_s else None,
-            'pairs_after': sum(c['pairs'] for c in after), 'paths': paths,
+            'pairs_after': sum(c['pairs'] for c in after), 'paths': paths, 'refreshes': refreshes,
             'truth': {b.name: b.T.tolist() for b in bots}, 'loadavg_end': list(os.getloadavg())}
 
 

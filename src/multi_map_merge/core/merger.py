@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 import threading
 import time
 from dataclasses import dataclass
@@ -36,6 +37,12 @@ from .robot_map import RobotMap
 from .state import link_dict, link_from_dict, placement_dict
 from .transforms import cell_to_metric, image_to_pose, pose_distance, pose_to_image
 from .workers import PairWorkers
+
+# refresh: a kept link is tracked again with its covariance once its maps' known cells (the
+# product of the two) grew by this factor since the covariance was computed
+REFRESH_GROWTH = 1.1
+# refresh: links tracked at once, per worker
+REFRESH_BATCH = 4
 
 # a tracked link whose refined pose moved less than this (metres, radians) stays as it is: a
 # changed link places the team again (the pose graph, the joint refinement of its two robots)
@@ -157,6 +164,7 @@ class MapMerger:
         self._tried: Dict[Tuple[str, str], Tuple[int, int]] = {}
         self._aligned: Dict[Tuple[str, str], schedule.Aligned] = {}
         self._refreshed: Dict[Tuple[str, str], Tuple[int, int]] = {}   # known cells at its last track or alignment
+        self._pinned: Dict[Tuple[str, str], Tuple[int, int]] = {}      # known cells when its covariance was computed
         self._track_failed: set = set()
         self._cycle = 0
         self._seen_versions: Dict[str, int] = {}   # per robot: its map's version the last cycle saw
@@ -447,6 +455,7 @@ class MapMerger:
             self._tried.clear()
             self._aligned.clear()
             self._refreshed.clear()
+            self._pinned.clear()
             self._track_failed.clear()
             self._results.clear()
             self._placements.clear()
@@ -495,6 +504,49 @@ class MapMerger:
         if self._corroborate(maps):
             events += self._place(maps, ref)
         # (5) past rigid: every placed map bent onto the walls of the others, for the merged map
+        self._bend(maps, ref)
+        return events
+
+    def refresh(self, budget: float) -> List[str]:
+        """Spare time between cycles spent on the kept links whose maps grew most since their
+        covariance was computed: each tracked again on the maps as they are now, with its
+        covariance (:func:`pair.track_pair` with ``pin``), until ``budget`` seconds have passed;
+        then every robot placed again if a link changed. A cycle tracks a robot's few links
+        only when its map changes, so the others stand as they were found on smaller maps; the
+        pose graph weighs them by what their overlap was then. Returns the events (none when no
+        link needed it: the maps grew by less than REFRESH_GROWTH since)."""
+        ref, maps = self._snapshot()
+        if not maps or budget <= 0 or not self.config.refresh_links:
+            return []
+        epoch = self._prior_epoch
+        deadline = time.monotonic() + budget
+        facts = {n: self._map_facts(m) for n, m in maps.items()}
+        with self._lock:
+            kept = {k: e for k, e in self._links.items()
+                    if k[0] in maps and k[1] in maps and k not in self._track_failed}
+            pinned = dict(self._pinned)
+            version = self.state_version
+        grown = sorted((-schedule.growth(facts, k, pinned.get(k)), k) for k in kept)
+        stale = [k for g, k in grown if -g >= REFRESH_GROWTH]
+        batch = REFRESH_BATCH * max(1, self.config.workers or os.cpu_count() or 1)
+        while stale and time.monotonic() < deadline:
+            todo, stale = stale[:batch], stale[batch:]
+            tracks = {}
+            for a, b in todo:
+                pa, ch = maps[a].grid, maps[b].grid
+                tracks[(a, b)] = (pose_to_image(kept[(a, b)].T, pa.resolution, pa.origin, ch.resolution, ch.origin),
+                                  True)
+            results = self._workers.align_pairs(maps, todo, tracks)
+            if epoch != self._prior_epoch:
+                return []     # a prior changed meanwhile: these were gated by the old one
+            for (a, b), r in zip(todo, results):
+                if r is not None:
+                    self._keep(maps[a], maps[b], r, refresh=True)
+        with self._lock:
+            moved = self.state_version != version
+        if not moved:
+            return []
+        events = self._place(maps, ref)
         self._bend(maps, ref)
         return events
 
@@ -699,7 +751,8 @@ class MapMerger:
             out[(a, b)] = (pose_to_image(T, pa.resolution, pa.origin, ch.resolution, ch.origin), (a, b) in uncertain)
         return out
 
-    def _keep(self, pa: RobotMap, ch: RobotMap, r: PairResult, plan: Optional[schedule.Plan] = None) -> None:
+    def _keep(self, pa: RobotMap, ch: RobotMap, r: PairResult, plan: Optional[schedule.Plan] = None,
+              refresh: bool = False) -> None:
         """(4) keep the pair's result if it is verified and replaces the kept link
         (:func:`links.replacement`: the paper's more-reliable rule, refined); a tracked link
         (``r.tracked``) takes its refined pose, or is aligned from features next."""
@@ -710,8 +763,11 @@ class MapMerger:
                 return               # a map restarted (or robot removed) since the cycle began
             self._tried[key] = (pa.version, ch.version)
             old = self._links.get(key)
-            if plan is not None:
-                self._refreshed[key] = (self._map_facts(pa).known, self._map_facts(ch).known)
+            known = (self._map_facts(pa).known, self._map_facts(ch).known)
+            if plan is not None or refresh:
+                self._refreshed[key] = known
+            if refresh:
+                self._pinned[key] = known
             if r.tracked:
                 self._track(key, r, old, image_to_pose(r.A, pa.grid.resolution, pa.grid.origin,
                                                        ch.grid.resolution, ch.grid.origin))
@@ -738,6 +794,7 @@ class MapMerger:
                 return               # forgotten (reset, map restart) meanwhile
             self._links[key] = Link(pa.name, ch.name, T, inlier_ratio, r.agreement, inliers, r.matches,
                                     time.time(), r.overlap, r.cov, r.bend, r.centre, r.parent_turn, r.child_turn)
+            self._pinned[key] = (self._map_facts(pa).known, self._map_facts(ch).known)
             self.state_version += 1
 
     def _track(self, key: Tuple[str, str], r: PairResult, old: Optional[Link], T: np.ndarray) -> None:
@@ -764,6 +821,13 @@ class MapMerger:
             return
         if r.overlap <= old.overlap:
             return                   # as links.replacement: the pose refined on more overlap only
+        if r.cov is not None:
+            # refreshed (MapMerger.refresh): the pose and its covariance, on the maps as they are
+            self._links[key] = dataclasses.replace(old, T=T, agreement=r.agreement, overlap=r.overlap,
+                                                   stamp=time.time(), cov=r.cov, bend=r.bend, centre=r.centre,
+                                                   parent_turn=r.parent_turn, child_turn=r.child_turn)
+            self.state_version += 1
+            return
         d, a = pose_distance(T, old.T)
         if d <= TRACK_MOVE[0] and a <= TRACK_MOVE[1]:
             return                   # the link stands: placing the team again would move nothing

@@ -580,6 +580,14 @@ MERGER_ROWS = (
            'order (pairs that can place a robot not yet placed first, by the overlap they can have); the '
            'others wait for a later cycle, so that a cycle places what it found without waiting for every '
            "pair of a large team. Kept links are tracked on new maps (milliseconds) beyond it. 0 = no limit")),
+        _P('refresh_links', True, _BOOL, '',
+          'between estimation cycles, track again the kept links whose maps grew most, with their covariance',
+          ("spend the time between estimation cycles (until the next is due) on the kept links whose maps grew "
+           "most since their covariance was computed: each tracked again on the maps as they are now, with its "
+           "covariance, and the robots placed again. A cycle tracks only a few of a robot's links when its map "
+           "changes, so the others stand as found on smaller maps; refreshed, placements in a large team are "
+           "as accurate as if every pair were aligned anew. Stops once the maps stop growing. false = the "
+           "estimation workers idle between cycles")),
         _P('dask_scheduler', '', _string(False), '',
           ("a Dask scheduler's address (e.g. tcp://host:8786) to align the pairs on its workers; "
            '"" = the local workers'),

@@ -34,6 +34,10 @@ from .placement_outputs import PlacementOutputs
 from .prior_inputs import PriorInputs
 from .setup_watch import SetupWatch
 
+# s: refreshing links stops this long before the next estimation cycle is due (a batch of
+# tracks under way finishes past its budget)
+REFRESH_MARGIN = 0.1
+
 __all__ = ['MergeNode', 'NODE_NAME', 'load_config', 'load_params', 'run_merge_node', 'workers_before_init']
 
 
@@ -253,10 +257,23 @@ class MergeNode:
                 error = e
             seconds = time.monotonic() - t0
             self._health.estimated(seconds, error)
+            if error is None:
+                self._refresh(t0 + period - REFRESH_MARGIN - time.monotonic())
             self._persist()
-            end = time.monotonic() + max(0.0, period - seconds)
+            end = t0 + max(period, seconds)
             while not rospy.is_shutdown() and time.monotonic() < end:
                 time.sleep(min(0.1, end - time.monotonic() + 1e-3))
+
+    def _refresh(self, budget: float) -> None:
+        """The time left until the next estimation cycle spent refreshing the stalest links
+        (``~refresh_links``, :meth:`MapMerger.refresh`)."""
+        if budget <= 0:
+            return
+        try:
+            for event in self.merger.refresh(budget):
+                rospy.loginfo('multi_map_merge: %s', event)
+        except Exception as e:  # as a bad cycle: estimation goes on
+            rospy.logerr('multi_map_merge: refreshing links failed: %r', e)
 
     def _persist(self) -> None:
         if self._state is None:

@@ -9,6 +9,7 @@ from test_merger_behaviour import another_version, strip_pieces
 
 from multi_map_merge.core import schedule
 from multi_map_merge.core.config import MergeConfig
+from multi_map_merge.core.grid import Grid
 from multi_map_merge.core.merger import MapMerger
 from multi_map_merge.core.transforms import se2
 
@@ -171,3 +172,47 @@ def test_a_cycle_over_its_budget_leaves_pairs_for_the_next(ps):
     assert len(m.pair_results()) == 2 and set(m.placements()) == {'a', 'b', 'c'}
     errors = [pose_error(m.placements()[n].T, truth(ps[0][1], ps[k][1])) for k, n in ((1, 'b'), (2, 'c'))]
     assert all(d < 0.1 and a < 1.0 for d, a in errors), errors
+
+
+def earlier(g):
+    """The map as it was earlier: the same grid with the last fifth of its known rows unknown."""
+    data = g.data.copy()
+    rows = np.flatnonzero((data >= 0).any(axis=1))
+    data[rows[0] + int(0.8 * (rows[-1] - rows[0])):] = -1
+    return Grid(data, g.resolution, g.origin)
+
+
+def test_spare_time_refreshes_a_link_found_on_smaller_maps(ps):
+    m = MapMerger(MergeConfig(reference_robot='a', workers=1))
+    for n, (g, _) in zip('ab', ps):
+        m.update_map(n, earlier(g))
+    m.estimate()
+    key = ('a', 'b')
+    found = m.links()[key]
+    assert found.cov is not None
+    # the maps grew; no cycle yet: spare time tracks the link on them, with its covariance
+    for n, (g, _) in zip('ab', ps):
+        m.update_map(n, g)
+    m.refresh(30.0)
+    now = m.links()[key]
+    assert now.overlap > 1.5 * found.overlap
+    assert np.trace(now.cov[:2, :2]) < np.trace(found.cov[:2, :2])
+    d, a = pose_error(now.T, truth(ps[0][1], ps[1][1]))
+    assert d < 0.05 and a < 0.5, (d, a)
+    assert m.placements()['b'].T is not None
+    d, a = pose_error(m.placements()['b'].T, truth(ps[0][1], ps[1][1]))
+    assert d < 0.05 and a < 0.5, (d, a)
+    # the maps as they were when it was refreshed: nothing to do
+    m.refresh(30.0)
+    assert m.links()[key] is now
+
+
+def test_refresh_links_false_leaves_spare_time_idle(ps):
+    m = MapMerger(MergeConfig(reference_robot='a', workers=1, refresh_links=False))
+    for n, (g, _) in zip('ab', ps):
+        m.update_map(n, earlier(g))
+    m.estimate()
+    found = m.links()[('a', 'b')]
+    for n, (g, _) in zip('ab', ps):
+        m.update_map(n, g)
+    assert m.refresh(30.0) == [] and m.links()[('a', 'b')] is found
