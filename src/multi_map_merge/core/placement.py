@@ -83,15 +83,20 @@ def widest_paths(edges: Links, names: Iterable[str], ref: str) -> Dict[str, Plac
     link has the highest inlier ratio (widest path, maximin)."""
     names = set(names)
     best: Dict[str, Placement] = {ref: Placement(np.eye(3), 1.0, 1.0, 0, '', (ref,), time.time())}
+    # per robot, its links (in ``edges``' order) and the robot at their other end
+    around: Dict[str, List[Tuple[str, Link]]] = {}
+    for (a, b), e in edges.items():
+        if a == b:
+            around.setdefault(a, []).append((a, e))
+            continue
+        around.setdefault(a, []).append((b, e))
+        around.setdefault(b, []).append((a, e))
     frontier = [ref]
     # N is small, so a simple loop does
     while frontier:
         frontier.sort(key=lambda n: best[n].inlier_ratio)
         u = frontier.pop()
-        for (a, b), e in edges.items():
-            if u not in (a, b):
-                continue
-            v = b if u == a else a
+        for v, e in around.get(u, ()):
             if v not in names:
                 continue
             ratio = min(best[u].inlier_ratio, e.inlier_ratio)
