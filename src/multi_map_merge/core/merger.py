@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import os
 import threading
 import time
 from dataclasses import dataclass
@@ -36,7 +35,7 @@ from .priors import PriorRefused, in_priors_frame, relative_pose
 from .robot_map import RobotMap
 from .state import link_dict, link_from_dict, placement_dict
 from .transforms import cell_to_metric, image_to_pose, pose_distance, pose_to_image
-from .workers import PairWorkers
+from .workers import PairWorkers, workers_count
 
 # refresh: a kept link is tracked again with its covariance once its maps' known cells (the
 # product of the two) grew by this factor since the covariance was computed
@@ -528,15 +527,10 @@ class MapMerger:
             version = self.state_version
         grown = sorted((-schedule.growth(facts, k, pinned.get(k)), k) for k in kept)
         stale = [k for g, k in grown if -g >= REFRESH_GROWTH]
-        batch = REFRESH_BATCH * max(1, self.config.workers or os.cpu_count() or 1)
+        batch = REFRESH_BATCH * workers_count(self.config.workers)
         while stale and time.monotonic() < deadline:
             todo, stale = stale[:batch], stale[batch:]
-            tracks = {}
-            for a, b in todo:
-                pa, ch = maps[a].grid, maps[b].grid
-                tracks[(a, b)] = (pose_to_image(kept[(a, b)].T, pa.resolution, pa.origin, ch.resolution, ch.origin),
-                                  True)
-            results = self._workers.align_pairs(maps, todo, tracks)
+            results = self._workers.align_pairs(maps, todo, _as_tracks(maps, {k: kept[k].T for k in todo}, set(todo)))
             if epoch != self._prior_epoch:
                 return []     # a prior changed meanwhile: these were gated by the old one
             for (a, b), r in zip(todo, results):
@@ -745,11 +739,7 @@ class MapMerger:
         whether to compute their covariance (a link without one: its walls said too little)."""
         with self._lock:
             uncertain = {k for k, e in self._links.items() if e.cov is None}
-        out = {}
-        for (a, b), T in plan.track.items():
-            pa, ch = maps[a].grid, maps[b].grid
-            out[(a, b)] = (pose_to_image(T, pa.resolution, pa.origin, ch.resolution, ch.origin), (a, b) in uncertain)
-        return out
+        return _as_tracks(maps, plan.track, uncertain)
 
     def _keep(self, pa: RobotMap, ch: RobotMap, r: PairResult, plan: Optional[schedule.Plan] = None,
               refresh: bool = False) -> None:
@@ -794,7 +784,7 @@ class MapMerger:
                 return               # forgotten (reset, map restart) meanwhile
             self._links[key] = Link(pa.name, ch.name, T, inlier_ratio, r.agreement, inliers, r.matches,
                                     time.time(), r.overlap, r.cov, r.bend, r.centre, r.parent_turn, r.child_turn)
-            self._pinned[key] = (self._map_facts(pa).known, self._map_facts(ch).known)
+            self._pinned[key] = known
             self.state_version += 1
 
     def _track(self, key: Tuple[str, str], r: PairResult, old: Optional[Link], T: np.ndarray) -> None:
@@ -812,8 +802,9 @@ class MapMerger:
         self._track_failed.discard(key)
         self._results[key] = dataclasses.replace(r, matches=old.matches, inliers=old.inliers,
                                                  inlier_ratio=old.inlier_ratio)
-        if old.cov is None and r.cov is not None:
-            # a link whose walls said too little when aligned, pinned on its maps now
+        # pinned on its maps now: a link whose walls said too little when aligned, or one refreshed
+        # on more overlap (MapMerger.refresh): the pose and its covariance, on the maps as they are
+        if r.cov is not None and (old.cov is None or r.overlap > old.overlap):
             self._links[key] = dataclasses.replace(old, T=T, agreement=r.agreement, overlap=r.overlap,
                                                    stamp=time.time(), cov=r.cov, bend=r.bend, centre=r.centre,
                                                    parent_turn=r.parent_turn, child_turn=r.child_turn)
@@ -821,13 +812,6 @@ class MapMerger:
             return
         if r.overlap <= old.overlap:
             return                   # as links.replacement: the pose refined on more overlap only
-        if r.cov is not None:
-            # refreshed (MapMerger.refresh): the pose and its covariance, on the maps as they are
-            self._links[key] = dataclasses.replace(old, T=T, agreement=r.agreement, overlap=r.overlap,
-                                                   stamp=time.time(), cov=r.cov, bend=r.bend, centre=r.centre,
-                                                   parent_turn=r.parent_turn, child_turn=r.child_turn)
-            self.state_version += 1
-            return
         d, a = pose_distance(T, old.T)
         if d <= TRACK_MOVE[0] and a <= TRACK_MOVE[1]:
             return                   # the link stands: placing the team again would move nothing
@@ -990,6 +974,18 @@ class MapMerger:
             p = warp_patch(kv[1], kv[0], m.grid.resolution, m.grid.origin, T, lattice, c.max_cells)
         self._patches[m.name] = (key, p)
         return p
+
+
+def _as_tracks(maps: Dict[str, RobotMap], poses: Dict[Tuple[str, str], np.ndarray],
+               pin: set) -> Dict[Tuple[str, str], Tuple[np.ndarray, bool]]:
+    """Links to track (pair -> its pose, metres of the child's frame -> the parent's) as
+    :meth:`PairWorkers.align_pairs` takes them: transforms between the pairs' current grids'
+    cells, and whether to compute the covariance (the pairs of ``pin``)."""
+    out = {}
+    for (a, b), T in poses.items():
+        pa, ch = maps[a].grid, maps[b].grid
+        out[(a, b)] = (pose_to_image(T, pa.resolution, pa.origin, ch.resolution, ch.origin), (a, b) in pin)
+    return out
 
 
 def _same_pose(A: np.ndarray, B: np.ndarray) -> bool:

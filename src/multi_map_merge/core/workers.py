@@ -236,10 +236,15 @@ def _discard_pool() -> None:
     _POOL, _POOL_SIZE = None, 0
 
 
+def workers_count(workers: int) -> int:
+    """Processes of the local pool for ``workers`` (:attr:`MergeConfig.workers`: 0 = one per core)."""
+    return workers or os.cpu_count() or 1
+
+
 def _pool(workers: int):
     """The process pool shared by every merger in this process (None: work inline)."""
     global _POOL, _POOL_SIZE
-    n = workers or os.cpu_count() or 1
+    n = workers_count(workers)
     if (n <= 1 and _POOL is not None) or (n > 1 and (_POOL is None or _POOL_SIZE != n)):
         start_pool(n)   # (started early with the default size, then configured otherwise)
     return _POOL
@@ -258,7 +263,7 @@ def start_pool(workers: int = 0) -> None:
     # few 3N x 3N systems per cycle): OpenBLAS's LAPACK runs even a 9 x 9 solve on its threads,
     # which take milliseconds to wake while the workers keep the cores busy, microseconds on one
     process.one_blas_thread()
-    n = workers or os.cpu_count() or 1
+    n = workers_count(workers)
     if _POOL is not None:
         # waiting for the old workers (idle: a pool is replaced only when the configured size
         # differs from the one started early); Python 3.8's executor left behind with wait=False
