@@ -30,7 +30,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Dict, List, Optional, Tuple
+from typing import Any, Callable, Dict, List, Optional, Tuple
+
+try:
+    from typing import Protocol
+except ImportError:  # pragma: no cover (Python 3.7)
+    Protocol = object
 
 import cv2
 import numpy as np
@@ -61,17 +66,32 @@ MAX_WALLS = 4000
 # placed maps a robot is refined against at most: those whose placed known boxes meet its own
 # most (in a large team a map overlaps a few others much and the rest little or not at all)
 NEIGHBOURS = 8
+# refinements of a round shipped to the worker processes in this many chunks per worker: a
+# chunk carries the maps it needs once (neighbours overlap), several per worker even out their
+# lengths
+CHUNKS_PER_WORKER = 2
 # metres a robot's placed known box is grown by when looking for the maps it may meet: beyond
 # the window its union is warped on (the search's window and the cost field's pad)
 NEAR = 2.0
 
 
+class Runner(Protocol):
+    """Runs calls in worker processes: ``runner(fn, [args, ...])`` returns ``[fn(*args), ...]``
+    in order; ``workers``: how many run at once."""
+
+    workers: int
+
+    def __call__(self, fn: Callable, calls: List[tuple]) -> list: ...
+
+
 @dataclass
 class Robot:
-    """What the refinement needs of one placed robot: its grid's levels (at the merged
-    resolution), the classified values of its known part and its wall cells."""
+    """What the refinement needs of one placed robot: its grid's geometry and levels (at the
+    merged resolution), the classified values of its known part and its wall cells. Plain
+    arrays: it goes to the worker processes as it is."""
 
-    grid: Grid
+    resolution: float                   # metres per cell
+    origin: Tuple[float, float, float]  # (x, y, yaw) of cell (0, 0)'s corner in its map frame
     levels: np.ndarray
     box: Tuple[int, int, int, int]      # known box (rows r0:r1, cols c0:c1)
     values: np.ndarray                  # int8 -1/0/100 of the cells in box
@@ -84,7 +104,8 @@ class Robot:
             return None
         box, values = box_values
         walls = occupied_points(levels, box, MAX_WALLS)
-        return cls(grid, levels, box, values, walls, cell_to_metric(grid.resolution, grid.origin))
+        return cls(grid.resolution, tuple(grid.origin), levels, box, values, walls,
+                   cell_to_metric(grid.resolution, grid.origin))
 
 
 # classified OccupancyGrid values (as uint8: 255 unknown, 0 free, 100 occupied) -> levels
@@ -102,17 +123,30 @@ def _placed_box(r: Robot, T: np.ndarray, grow: float) -> Tuple[float, float, flo
             float(p[:, 0].max()) + grow, float(p[:, 1].max()) + grow)
 
 
+Box = Tuple[float, float, float, float]     # (x0, y0, x1, y1) metres, merged frame
+
+
+def placed_boxes(robots: Dict[str, Robot], poses: Dict[str, np.ndarray]) -> Dict[str, Box]:
+    """Per robot of ``poses`` (and ``robots``): its known box placed in the merged frame
+    (:func:`_placed_box`, not grown)."""
+    return {o: _placed_box(robots[o], T, 0.0) for o, T in poses.items() if o in robots}
+
+
 def neighbours(robots: Dict[str, Robot], poses: Dict[str, np.ndarray], n: str,
-               most: int = NEIGHBOURS) -> List[str]:
+               most: int = NEIGHBOURS, boxes: Optional[Dict[str, Box]] = None) -> List[str]:
     """The robots of ``poses`` (robot -> pose in the merged frame) that robot ``n`` is refined
     against: those whose placed known boxes meet its own grown by NEAR (the others land
-    nowhere in its union's window), the ``most`` whose boxes meet it most; by name."""
-    a = _placed_box(robots[n], poses[n], NEAR)
+    nowhere in its union's window), the ``most`` whose boxes meet it most; by name. ``boxes``:
+    :func:`placed_boxes` of ``poses``, when the caller has them."""
+    if boxes is None:
+        boxes = placed_boxes(robots, poses)
+    x0, y0, x1, y1 = boxes[n]
+    a = (x0 - NEAR, y0 - NEAR, x1 + NEAR, y1 + NEAR)
     met = []
     for o in sorted(poses):
         if o == n or o not in robots:
             continue
-        b = _placed_box(robots[o], poses[o], 0.0)
+        b = boxes[o]
         w, h = min(a[2], b[2]) - max(a[0], b[0]), min(a[3], b[3]) - max(a[1], b[1])
         if w > 0 and h > 0:
             met.append((-w * h, o))
@@ -121,13 +155,16 @@ def neighbours(robots: Dict[str, Robot], poses: Dict[str, np.ndarray], n: str,
 
 def refine_placements(robots: Dict[str, Robot], anchors: Dict[str, np.ndarray], ref: str,
                       lattice: Lattice, tolerance: int, current: Optional[Dict[str, np.ndarray]] = None,
-                      moving: Optional[List[str]] = None) -> Dict[str, np.ndarray]:
+                      moving: Optional[List[str]] = None, run: Optional[Runner] = None) -> Dict[str, np.ndarray]:
     """The pose of every robot of ``anchors`` (3x3, its map frame in the merged frame) refined
     against the placed robots it overlaps (module docstring: its :func:`neighbours`); the
     reference and robots without walls on another's known cells keep their anchor. ``robots``:
     every placed robot (the reference included), ``tolerance``: verification's wall tolerance
     (cells). ``moving``: the robots refined (default: every one); the others stay at their pose
-    of ``current`` (default: their anchor). Returns robot -> pose, for every robot of
+    of ``current`` (default: their anchor). ``run``: runs a list of calls in worker processes
+    (:data:`Runner`); the robots of a round are then refined there ahead, against the poses
+    the round starts from, and a robot whose neighbours moved earlier in the round is refined
+    again here: the same poses as without it. Returns robot -> pose, for every robot of
     ``anchors``."""
     start = {n: T.copy() for n, T in anchors.items()}
     movable = [n for n in sorted(anchors) if n != ref and n in robots]
@@ -139,17 +176,23 @@ def refine_placements(robots: Dict[str, Robot], anchors: Dict[str, np.ndarray], 
     poses = {n: T.copy() for n, T in start.items()}
     if len(poses) < 2 or not movable:
         return poses
-    near = {n: neighbours(robots, start, n) for n in movable}
+    boxes = placed_boxes(robots, start)
+    near = {n: neighbours(robots, start, n, boxes=boxes) for n in movable}
     seen: Dict[str, list] = {}      # per robot: the others' poses it was last refined against
     # (a few robots refined against many held: one round; their moves barely touch each other)
     for _ in range(ROUNDS if moving is None else 1):
         moved = False
+        ahead = _ahead(robots, [n for n in movable if not _same_inputs(seen, n, poses, near[n])],
+                       anchors, poses, near, lattice, tolerance, run)
         for n in movable:
             others = {o: poses[o] for o in near[n]}
-            if n in seen and all(np.array_equal(a, b) for a, b in zip(seen[n], others.values())):
+            if _same_inputs(seen, n, poses, near[n]):
                 continue                 # the same inputs give the same pose
             seen[n] = list(others.values())
-            T = _refine_one(robots, n, anchors[n], others, lattice, tolerance)
+            if n in ahead and _same_inputs(seen, n, ahead[n][0], near[n]):
+                T = ahead[n][1]
+            else:
+                T = _refine_one(robots, n, anchors[n], others, lattice, tolerance)
             if not np.array_equal(T, poses[n]):
                 poses[n] = T
                 moved = True
@@ -162,6 +205,40 @@ def refine_placements(robots: Dict[str, Robot], anchors: Dict[str, np.ndarray], 
     if _agreement_over(robots, poses, pairs, tolerance) < _agreement_over(robots, start, pairs, tolerance):
         return start
     return poses
+
+
+def _same_inputs(seen: Dict[str, list], n: str, poses: Dict[str, np.ndarray], near: List[str]) -> bool:
+    """Robot ``n`` was last refined against its neighbours ``near`` at these ``poses``."""
+    return n in seen and all(np.array_equal(a, poses[o]) for a, o in zip(seen[n], near))
+
+
+def _ahead(robots: Dict[str, Robot], todo: List[str], anchors: Dict[str, np.ndarray],
+           poses: Dict[str, np.ndarray], near: Dict[str, List[str]], lattice: Lattice, tolerance: int,
+           run: Optional[Runner]) -> Dict[str, Tuple[Dict[str, np.ndarray], np.ndarray]]:
+    """Per robot of ``todo`` (robot -> (its neighbours' poses it was refined against, its
+    pose)), refined in worker processes by ``run``, in ``CHUNKS_PER_WORKER`` chunks per worker
+    (a chunk carries the robots its refinements need once); none without ``run`` or with a
+    single robot (the workers would only add the shipping)."""
+    if run is None or len(todo) < 2:
+        return {}
+    k = min(len(todo), CHUNKS_PER_WORKER * run.workers)
+    chunks = [todo[i::k] for i in range(k)]
+    calls = []
+    for chunk in chunks:
+        jobs = [(n, anchors[n], {o: poses[o] for o in near[n]}) for n in chunk]
+        needed = {n for n in chunk} | {o for n in chunk for o in near[n]}
+        calls.append(({o: robots[o] for o in needed}, jobs, lattice, tolerance))
+    out = {}
+    for (_, jobs, _, _), poses_of in zip(calls, run(refine_chunk, calls)):
+        for (n, _, others), T in zip(jobs, poses_of):
+            out[n] = (others, T)
+    return out
+
+
+def refine_chunk(robots: Dict[str, Robot], jobs: List[Tuple[str, np.ndarray, Dict[str, np.ndarray]]],
+                 lattice: Lattice, tolerance: int) -> List[np.ndarray]:
+    """:func:`_refine_one` of each job (robot, anchor, its neighbours' poses): a worker's task."""
+    return [_refine_one(robots, n, anchor, others, lattice, tolerance) for n, anchor, others in jobs]
 
 
 def _refine_one(robots: Dict[str, Robot], n: str, anchor: np.ndarray, others: Dict[str, np.ndarray],
@@ -294,7 +371,7 @@ def _agreement_over(robots: Dict[str, Robot], poses: Dict[str, np.ndarray], pair
 
 
 def _counts(parent: Robot, child: Robot, T: np.ndarray, tolerance: int) -> Tuple[int, int]:
-    A = pose_to_image(T, parent.grid.resolution, parent.grid.origin, child.grid.resolution, child.grid.origin)
+    A = pose_to_image(T, parent.resolution, parent.origin, child.resolution, child.origin)
     agree, conflict, _ = verify.agreement_counts(parent.levels, child.levels, A, tolerance, (parent.box, child.box))
     return agree, conflict
 

@@ -913,7 +913,7 @@ class MapMerger:
             if not moving:
                 moving = set()
         poses = joint.refine_placements(robots, anchors, ref, lattice_for(maps[ref].grid), c.agreement_tolerance,
-                                        current, moving) if moving != set() else current
+                                        current, moving, self._workers.runner(maps)) if moving != set() else current
         with self._lock:
             kept = {} if moving is None or last is None else dict(last[1])
             kept.update({n: (maps[n].key, anchors[n], poses[n]) for n in robots if moving is None or n in moving})

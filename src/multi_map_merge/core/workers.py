@@ -106,6 +106,12 @@ class PairWorkers:
             return None
         return _pool(c.workers)
 
+    def runner(self, maps: Dict[str, RobotMap]) -> Optional[PoolRunner]:
+        """The local pool's workers for other work on these maps (:class:`PoolRunner`), or
+        None to do it in this process (:meth:`pool_for`)."""
+        pool = self.pool_for(maps)
+        return PoolRunner(pool) if pool is not None else None
+
     def input(self, m: RobotMap, features: bool = True) -> PairInput:
         """A map as one side of a pair: its crop, and its features unless ``features`` is False
         (one side of a tracked pair, :func:`pair.track_pair`: a map only tracked is never
@@ -219,6 +225,24 @@ class PairWorkers:
                     results[what] = fut.result()
             start_ready()
         return [results.get(ab) for ab in todo]
+
+
+class PoolRunner:
+    """Calls run in the local pool's worker processes (:class:`joint.Runner`): a merger's
+    serial steps that split into independent pieces (:func:`joint.refine_placements`). A
+    worker that died breaks the pool, as :meth:`PairWorkers.align_pairs` says."""
+
+    def __init__(self, pool):
+        self.pool = pool
+        self.workers = int(getattr(pool, '_max_workers', 0) or 1)
+
+    def __call__(self, fn, calls: List[tuple]) -> list:
+        try:
+            futures = [self.pool.submit(run_task, fn, *args) for args in calls]
+            return [f.result() for f in futures]
+        except BrokenProcessPool:
+            _discard_pool()
+            raise
 
 
 def _map(pool, fn, *iterables) -> list:
