@@ -70,6 +70,9 @@ NEIGHBOURS = 8
 # chunk carries the maps it needs once (neighbours overlap), several per worker even out their
 # lengths
 CHUNKS_PER_WORKER = 2
+# robots to refine in a round from which they go to the workers: a chunk ships the maps its
+# robots meet (megabytes with maps of 100,000 known cells), which a few refinements do not repay
+AHEAD_FROM = 16
 # metres a robot's placed known box is grown by when looking for the maps it may meet: beyond
 # the window its union is warped on (the search's window and the cost field's pad)
 NEAR = 2.0
@@ -162,10 +165,10 @@ def refine_placements(robots: Dict[str, Robot], anchors: Dict[str, np.ndarray], 
     every placed robot (the reference included), ``tolerance``: verification's wall tolerance
     (cells). ``moving``: the robots refined (default: every one); the others stay at their pose
     of ``current`` (default: their anchor). ``run``: runs a list of calls in worker processes
-    (:data:`Runner`); the robots of a round are then refined there ahead, against the poses
-    the round starts from, and a robot whose neighbours moved earlier in the round is refined
-    again here: the same poses as without it. Returns robot -> pose, for every robot of
-    ``anchors``."""
+    (:data:`Runner`); the robots of a round (AHEAD_FROM or more) are then refined there ahead,
+    against the poses the round starts from, and a robot whose neighbours moved earlier in the
+    round is refined again here: the same poses as without it. Returns robot -> pose, for
+    every robot of ``anchors``."""
     start = {n: T.copy() for n, T in anchors.items()}
     movable = [n for n in sorted(anchors) if n != ref and n in robots]
     if moving is not None:
@@ -217,9 +220,9 @@ def _ahead(robots: Dict[str, Robot], todo: List[str], anchors: Dict[str, np.ndar
            run: Optional[Runner]) -> Dict[str, Tuple[Dict[str, np.ndarray], np.ndarray]]:
     """Per robot of ``todo`` (robot -> (its neighbours' poses it was refined against, its
     pose)), refined in worker processes by ``run``, in ``CHUNKS_PER_WORKER`` chunks per worker
-    (a chunk carries the robots its refinements need once); none without ``run`` or with a
-    single robot (the workers would only add the shipping)."""
-    if run is None or len(todo) < 2:
+    (a chunk carries the robots its refinements need once); none without ``run`` or with fewer
+    than AHEAD_FROM robots (the shipping would cost more than the workers save)."""
+    if run is None or len(todo) < AHEAD_FROM:
         return {}
     k = min(len(todo), CHUNKS_PER_WORKER * run.workers)
     chunks = [todo[i::k] for i in range(k)]

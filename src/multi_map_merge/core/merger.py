@@ -20,7 +20,7 @@ import math
 import threading
 import time
 from dataclasses import dataclass
-from typing import Dict, List, Optional, Sequence, Tuple
+from typing import Dict, List, Optional, Sequence, Set, Tuple
 
 import numpy as np
 
@@ -42,6 +42,10 @@ from .workers import PairWorkers, workers_count
 REFRESH_GROWTH = 1.1
 # refresh: links tracked at once, per worker
 REFRESH_BATCH = 4
+# with ~refresh_links, a cycle refines a robot whose map changed (its anchor did not move) once
+# its known cells grew by this factor since its last refinement; a smaller change waits for
+# the spare time between cycles (a grown map moves its walls against the others' rarely)
+REFINE_GROWTH = 1.1
 
 # a tracked link whose refined pose moved less than this (metres, radians) stays as it is: a
 # changed link places the team again (the pose graph, the joint refinement of its two robots)
@@ -510,10 +514,12 @@ class MapMerger:
         """Spare time between cycles spent on the kept links whose maps grew most since their
         covariance was computed: each tracked again on the maps as they are now, with its
         covariance (:func:`pair.track_pair` with ``pin``), until ``budget`` seconds have passed;
-        then every robot placed again if a link changed. A cycle tracks a robot's few links
-        only when its map changes, so the others stand as they were found on smaller maps; the
-        pose graph weighs them by what their overlap was then. Returns the events (none when no
-        link needed it: the maps grew by less than REFRESH_GROWTH since)."""
+        then every robot placed again if a link changed, or if time is left and a robot's map
+        changed too little since its last joint refinement for a cycle to refine it again
+        (REFINE_GROWTH: the spare time does). A cycle tracks a robot's few links only when its
+        map changes, so the others stand as they were found on smaller maps; the pose graph
+        weighs them by what their overlap was then. Returns the events (none when nothing
+        needed it: the maps grew by less than REFRESH_GROWTH since, no refinement pending)."""
         ref, maps = self._snapshot()
         if not maps or budget <= 0 or not self.config.refresh_links:
             return []
@@ -538,11 +544,26 @@ class MapMerger:
                     self._keep(maps[a], maps[b], r, refresh=True)
         with self._lock:
             moved = self.state_version != version
-        if not moved:
+        # robots whose map changed too little for a cycle to refine them (REFINE_GROWTH), a
+        # batch of them
+        pending = self._refinement_pending(maps, ref)[:batch] if time.monotonic() < deadline else []
+        if not moved and not pending:
             return []
-        events = self._place(maps, ref)
+        events = self._place(maps, ref, also=set(pending))
         self._bend(maps, ref)
         return events
+
+    def _refinement_pending(self, maps: Dict[str, RobotMap], ref: str) -> List[str]:
+        """The placed robots whose map changed since the joint refinement last took them
+        (:meth:`_joint`), those whose known cells grew most since first."""
+        with self._lock:
+            last = self._joint_key
+            placed = set(self._placements)
+        if not self.config.joint_placement or last is None or last[0] != ref:
+            return []
+        grown = [(-self._map_facts(maps[n]).known / float(max(1, k[3])), n) for n, k in last[1].items()
+                 if n in placed and n in maps and maps[n].key != k[0]]
+        return [n for _, n in sorted(grown)]
 
     def _corroborate(self, maps: Dict[str, RobotMap]) -> List[str]:
         """Keep the pair results refused only for too little evidence that corroborate each
@@ -824,9 +845,10 @@ class MapMerger:
         their crops and features): cells of ``ch`` -> cells of ``pa``."""
         return align_pair(self.config, self._workers.input(pa), self._workers.input(ch), seed)
 
-    def _place(self, maps: Dict[str, RobotMap], ref: str) -> List[str]:
+    def _place(self, maps: Dict[str, RobotMap], ref: str, also: Optional[Set[str]] = None) -> List[str]:
         """Place every robot from the verified links (see :mod:`placement`) and keep, per
-        robot, the best placement seen; returns the events (merged, improved)."""
+        robot, the best placement seen; returns the events (merged, improved). ``also``:
+        robots the joint refinement takes if their map changed at all (:meth:`_joint`)."""
         c = self.config
         with self._lock:
             edges = dict(self._links)
@@ -855,7 +877,7 @@ class MapMerger:
         # the kept placement stays unless the new one is better
         new, events = placement.hysteresis(c, best, old, edges, ref, regraphed)
         # every placement refined against every placed map it overlaps, when one was adopted anew
-        new = self._joint(maps, new, old, ref)
+        new = self._joint(maps, new, old, ref, also or set())
         # how well each is pinned: its links' covariances, along its chain or by the graph
         placement.pin(c, new, edges, ref, graph_key is not None, self._drift_covs)
         with self._lock:
@@ -874,16 +896,18 @@ class MapMerger:
         return events
 
     def _joint(self, maps: Dict[str, RobotMap], new: Dict[str, Placement], old: Dict[str, Placement],
-               ref: str) -> Dict[str, Placement]:
+               ref: str, also: Set[str]) -> Dict[str, Placement]:
         """The placements ``new`` (after hysteresis) refined by :mod:`joint` against each other,
         the reference and robots at their prior fixed; a robot it moves gets a new
         :class:`Placement` (its ``graph_T`` the links' pose). Refines only the robots whose
         inputs changed since they were last refined: their map, or their anchor (the links'
         pose) by more than SAME_POSE (the reference's map: its neighbours); the others keep the
         pose they were refined to, so that a team's cost per round of map updates grows with
-        the team, not with its square. A cycle in which nothing changed cannot move a robot,
-        and a move smaller than SAME_POSE keeps the robot's placement as it was (a map that grew
-        a little does not move its TF)."""
+        the team, not with its square. With ``refresh_links``, a map that changed counts only
+        once its known cells grew by REFINE_GROWTH since its last refinement, unless it is one
+        of ``also`` (the spare time's placement, :meth:`refresh`, takes the others). A cycle in
+        which nothing changed cannot move a robot, and a move smaller than SAME_POSE keeps the
+        robot's placement as it was (a map that grew a little does not move its TF)."""
         c = self.config
         if not c.joint_placement:
             return new
@@ -896,6 +920,7 @@ class MapMerger:
         if ref not in robots:
             return new
         anchors = {n: (new[n].graph_T if new[n].graph_T is not None else new[n].T) for n in robots}
+        known = {n: self._map_facts(maps[n]).known for n in robots}
         with self._lock:
             last = self._joint_key
         moving = None                  # every robot, from its anchor
@@ -905,8 +930,9 @@ class MapMerger:
             # refined (a robot new among them too); the reference's neighbours for the reference.
             # The others keep the pose they were refined to (a placement adopted anew with an
             # anchor that moved less, as the pose graph is solved again, too)
-            moving = {n for n in robots if n not in last[1] or last[1][n][0] != maps[n].key
-                      or not _same_pose(anchors[n], last[1][n][1])}
+            moving = {n for n in robots if n not in last[1] or not _same_pose(anchors[n], last[1][n][1])
+                      or (last[1][n][0] != maps[n].key
+                          and (n in also or not c.refresh_links or known[n] >= REFINE_GROWTH * last[1][n][3]))}
             current.update({n: last[1][n][2] for n in robots if n not in moving})
             if ref in moving:
                 moving.update(joint.neighbours(robots, current, ref))
@@ -916,7 +942,8 @@ class MapMerger:
                                         current, moving, self._workers.runner(maps)) if moving != set() else current
         with self._lock:
             kept = {} if moving is None or last is None else dict(last[1])
-            kept.update({n: (maps[n].key, anchors[n], poses[n]) for n in robots if moving is None or n in moving})
+            kept.update({n: (maps[n].key, anchors[n], poses[n], known[n])
+                         for n in robots if moving is None or n in moving})
             self._joint_key = (ref, {n: kept[n] for n in robots if n in kept})
         out = dict(new)
         for n, T in poses.items():

@@ -171,7 +171,7 @@ def test_a_robot_is_refined_against_the_maps_it_can_meet_most():
 
 def test_worker_processes_give_the_poses_refined_here(monkeypatch):
     """With a runner (:class:`workers.PoolRunner`, two worker processes) a round's refinements
-    run ahead in the workers, and a robot whose neighbour moved earlier in the round is refined
+    (AHEAD_FROM or more) run ahead in the workers, and a robot whose neighbour moved earlier in the round is refined
     again here: the poses are those of the refinement in this process, bit for bit. Six
     windows of the Intel lab, their anchors off the truth by a few centimetres and a degree so
     that robots move (the workers' results used and discarded both)."""
@@ -193,6 +193,7 @@ def test_worker_processes_give_the_poses_refined_here(monkeypatch):
     here = []
     refine_one = joint._refine_one
     monkeypatch.setattr(joint, '_refine_one', lambda *a: here.append(a[1]) or refine_one(*a))
+    monkeypatch.setattr(joint, 'AHEAD_FROM', 2)      # (a team of six: in the workers all the same)
     with ProcessPoolExecutor(2, mp_context=multiprocessing.get_context('spawn')) as pool:
         for moving in (None, sorted(truth)[1:]):
             inline = joint.refine_placements(robots, anchors, 'r0', lattice, 2, dict(anchors), moving)

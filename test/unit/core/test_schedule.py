@@ -216,3 +216,34 @@ def test_refresh_links_false_leaves_spare_time_idle(ps):
     for n, (g, _) in zip('ab', ps):
         m.update_map(n, g)
     assert m.refresh(30.0) == [] and m.links()[('a', 'b')] is found
+
+
+@pytest.mark.parametrize('refresh_links', [True, False])
+def test_a_map_that_changed_little_is_refined_in_spare_time(ps, monkeypatch, refresh_links):
+    """A robot whose map changed but grew by less than REFINE_GROWTH since its joint refinement
+    is not refined again by a cycle: the spare time refines it, once. Without ``refresh_links``
+    (no spare-time work) the cycle refines it."""
+    from multi_map_merge.core import joint
+    refined = []
+    real = joint.refine_placements
+
+    def spy(robots, anchors, ref, lattice, tolerance, current=None, moving=None, run=None):
+        refined.append(set(anchors) - {ref} if moving is None else set(moving))
+        return real(robots, anchors, ref, lattice, tolerance, current, moving, run)
+    monkeypatch.setattr(joint, 'refine_placements', spy)
+    m = MapMerger(MergeConfig(reference_robot='a', workers=1, refresh_links=refresh_links))
+    for n, (g, _) in zip('abc', ps):
+        m.update_map(n, g)
+    m.estimate()
+    assert set(m.placements()) == {'a', 'b', 'c'} and refined[-1] == {'b', 'c'}
+    del refined[:]
+    m.update_map('b', another_version(ps[1][0]))      # the same known cells
+    m.estimate()
+    if not refresh_links:
+        assert refined == [{'b'}]
+        return
+    assert refined == []
+    m.refresh(30.0)
+    assert refined == [{'b'}]
+    m.refresh(30.0)                                      # done: nothing pending
+    assert refined == [{'b'}]
