@@ -30,12 +30,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Callable, Dict, List, Optional, Tuple
-
-try:
-    from typing import Protocol
-except ImportError:  # pragma: no cover (Python 3.7)
-    Protocol = object
+from typing import Any, Callable, Dict, List, Optional, Protocol, Tuple
 
 import cv2
 import numpy as np
@@ -229,7 +224,7 @@ def _ahead(robots: Dict[str, Robot], todo: List[str], anchors: Dict[str, np.ndar
     calls = []
     for chunk in chunks:
         jobs = [(n, anchors[n], {o: poses[o] for o in near[n]}) for n in chunk]
-        needed = {n for n in chunk} | {o for n in chunk for o in near[n]}
+        needed = set(chunk) | {o for n in chunk for o in near[n]}
         calls.append(({o: robots[o] for o in needed}, jobs, lattice, tolerance))
     out = {}
     for (_, jobs, _, _), poses_of in zip(calls, run(refine_chunk, calls)):

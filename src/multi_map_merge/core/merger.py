@@ -20,7 +20,7 @@ import math
 import threading
 import time
 from dataclasses import dataclass
-from typing import Dict, List, Optional, Sequence, Set, Tuple
+from typing import Dict, List, NamedTuple, Optional, Sequence, Set, Tuple
 
 import numpy as np
 
@@ -181,7 +181,7 @@ class MapMerger:
         self._restored: Dict[Tuple[str, str], Link] = {}
         self._merged = None       # (patch identities, merged grid) of the last compose
         self._graph_key = None    # the links the last pose-graph placement was made of
-        # (reference, per robot refined: (its map's key, its anchor)) of the joint refinement (_joint)
+        # (reference, per robot: how the joint refinement last took it, _Refined) (_joint)
         self._joint_key = None
         self._joint_robots: Dict[str, Tuple[tuple, Optional[joint.Robot]]] = {}   # per robot, per map key
         self._drift_covs: Dict[Tuple[str, str], tuple] = {}   # per link, its drift's covariance (placement.pin)
@@ -561,8 +561,8 @@ class MapMerger:
             placed = set(self._placements)
         if not self.config.joint_placement or last is None or last[0] != ref:
             return []
-        grown = [(-self._map_facts(maps[n]).known / float(max(1, k[3])), n) for n, k in last[1].items()
-                 if n in placed and n in maps and maps[n].key != k[0]]
+        grown = [(-self._map_facts(maps[n]).known / float(max(1, r.known)), n) for n, r in last[1].items()
+                 if n in placed and n in maps and maps[n].key != r.map_key]
         return [n for _, n in sorted(grown)]
 
     def _corroborate(self, maps: Dict[str, RobotMap]) -> List[str]:
@@ -930,10 +930,10 @@ class MapMerger:
             # refined (a robot new among them too); the reference's neighbours for the reference.
             # The others keep the pose they were refined to (a placement adopted anew with an
             # anchor that moved less, as the pose graph is solved again, too)
-            moving = {n for n in robots if n not in last[1] or not _same_pose(anchors[n], last[1][n][1])
-                      or (last[1][n][0] != maps[n].key
-                          and (n in also or not c.refresh_links or known[n] >= REFINE_GROWTH * last[1][n][3]))}
-            current.update({n: last[1][n][2] for n in robots if n not in moving})
+            moving = {n for n in robots if n not in last[1] or not _same_pose(anchors[n], last[1][n].anchor)
+                      or (last[1][n].map_key != maps[n].key
+                          and (n in also or not c.refresh_links or known[n] >= REFINE_GROWTH * last[1][n].known))}
+            current.update({n: last[1][n].pose for n in robots if n not in moving})
             if ref in moving:
                 moving.update(joint.neighbours(robots, current, ref))
             if not moving:
@@ -942,7 +942,7 @@ class MapMerger:
                                         current, moving, self._workers.runner(maps)) if moving != set() else current
         with self._lock:
             kept = {} if moving is None or last is None else dict(last[1])
-            kept.update({n: (maps[n].key, anchors[n], poses[n], known[n])
+            kept.update({n: _Refined(maps[n].key, anchors[n], poses[n], known[n])
                          for n in robots if moving is None or n in moving})
             self._joint_key = (ref, {n: kept[n] for n in robots if n in kept})
         out = dict(new)
@@ -1013,6 +1013,15 @@ def _as_tracks(maps: Dict[str, RobotMap], poses: Dict[Tuple[str, str], np.ndarra
         pa, ch = maps[a].grid, maps[b].grid
         out[(a, b)] = (pose_to_image(T, pa.resolution, pa.origin, ch.resolution, ch.origin), (a, b) in pin)
     return out
+
+
+class _Refined(NamedTuple):
+    """A robot as the joint refinement last took it (:meth:`MapMerger._joint`)."""
+
+    map_key: tuple          # its map's RobotMap.key
+    anchor: np.ndarray      # 3x3, the links' pose it was refined from
+    pose: np.ndarray        # 3x3, the pose it was refined to
+    known: int              # its map's known cells
 
 
 def _same_pose(A: np.ndarray, B: np.ndarray) -> bool:
