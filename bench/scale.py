@@ -2,7 +2,8 @@
 """Scale: teams of 8, 16, 32 and 64 robots whose maps grow live, merged in real time.
 
     python3 bench/scale.py [--sizes 8,16,32,64] [--rounds 3] [--world intel] [--seed 0]
-                           [--max-minutes 12] [--no-peer] [--results bench/results]
+                           [--estimation-rate 0] [--max-minutes 12] [--no-peer]
+                           [--results bench/results]
 
 Each team size runs in a fresh process (``--one``, so that its worker pool, caches and memory
 are its own) that holds one :class:`MapMerger` with the project's defaults (``MergeConfig()``),
@@ -28,13 +29,17 @@ other robot is placed, then a new version every period. The maps are fed, from a
 their own, through ``MapMerger.update_map`` as the node's subscribers feed them.
 
 The merger runs as the node runs it, in three threads of this process: estimation cycles
-(``estimate()``) back to back, each taking the newest maps (the node's estimation thread with no
-rate limit; a cycle starts as soon as a map arrived since the previous one started: a cycle with
-nothing new computes nothing, and waiting for news instead of spinning keeps the CPU for the work
-measured); while no map is new, the spare time refreshes the stalest links
-(``refresh(REFRESH_SLICE)``, a slice at a time, as the node spends its time between cycles:
-``~refresh_links``; not counted in a round's cost, but a map that arrives during a slice waits
-for it, which the staleness holds); compositing (``compose()``, the node's compositing thread: again after half a merge
+(``estimate()``), each taking the newest maps: by default back to back (the node's estimation
+thread with no rate limit: the most cycles a round, the worst case for a round's cost; a cycle
+starts as soon as a map arrived since the previous one started: a cycle with nothing new
+computes nothing, and waiting for news instead of spinning keeps the CPU for the work
+measured), or with ``--estimation-rate`` at the node's ``~estimation_rate`` (0.5 Hz by default:
+a cycle starts a period after the one before started, or when it ends if it took longer, and
+once a map is new); while no cycle is due, the spare time refreshes the stalest links
+(``refresh()``, as the node spends its time between cycles: ``~refresh_links``; back to back a
+slice of ``REFRESH_SLICE`` at a time, at a rate until the period ends less the node's margin;
+not counted in a round's cost, but a map that arrives during a refresh waits for it, which the
+staleness holds); compositing (``compose()``, the node's compositing thread: again after half a merge
 period); publishing every merge period (``1 / merge_rate``, 0.5 s: the node's /map timer) the
 newest composited grid when it is a new one (``ros.convert.grid_to_msg`` and the message
 serialised, as the node sends it; timed without it when rospy is not importable).
@@ -78,6 +83,10 @@ with why):
     scale: R robots: round of updates X s, staleness p50 A s p95 B s (C merge periods),
     late joiner placed in D s, worst placement error E m
 
+and a last line with how a round's cost grew from the smallest size to the largest, as
+measured and for maps of equal size (:func:`growth_line`: the teams draw their windows at
+random, so the smaller team's maps are not the larger's size on average).
+
 Writes ``<results>/scale.json`` (every estimation cycle and every update, per size) and
 ``<results>/scale.txt`` (the lines). Needs ``export PATH=/usr/bin:$PATH`` (Debian's python3: cv2,
 numpy); no ROS master.
@@ -109,6 +118,7 @@ GROW_S = 90.0         # s of robot time until the robot's whole window is known
 START_WITHIN = 0.3    # of the window's reach: where a robot may start, from the window's known centre
 FLIPS = 200           # known cells flipped free <-> occupied in every version (as bench/soak.py)
 REFRESH_SLICE = 0.25  # s: spare time spent refreshing links at a time (a new map waits at most this)
+REFRESH_MARGIN = 0.1  # s: the node's refresh ends this long before its next cycle is due (ros/node.py)
 MARGIN = 20           # cells of unknown kept around the known box (gmapping's canvas has some)
 WINDOW = 0.6          # of the building's known box, per robot (as run_bench.py's intel-sized rows)
 COLD_CAP = 0.5        # of --max-minutes: the cold start ends then even if a robot is still unplaced
@@ -270,6 +280,8 @@ def summarise(run: dict) -> dict:
         out['round_s'] = round_cost(cycles[:first + len(used)], first)
         if out['round_s'] is None:
             inv['round'] = 'no cycle after the cold start took a new map'
+        # the maps that round cost was spent on: their mean known cells (cost goes with map size)
+        out['round_known'] = float(np.mean([u['known'] for us in by_round[:complete] for u in us]))
         out['stale_p50_s'] = percentile(samples, 50)
         out['stale_p95_s'] = percentile(samples, 95)
         out['stale_n'] = len(samples)
@@ -310,6 +322,22 @@ def scale_line(robots: int, s: dict) -> str:
     err = 'INVALID (%s)' % inv['error'] if 'error' in inv else '%.3f m' % s['worst_err_m']
     return ('scale: %d robots: round of updates %s, %s, late joiner placed in %s, worst placement error %s'
             % (robots, rnd, stale, joiner, err))
+
+
+def growth_line(summaries: Dict[int, dict]) -> Optional[str]:
+    """How a round's cost grew from the smallest team size to the largest (None without two
+    sizes whose round is valid): as measured, and for maps of equal size (the measured ratio
+    times the smaller team's mean known cells a map over the larger's: a map's tracking and
+    refinement cost goes with its known cells, and teams draw their windows at random)."""
+    ok = sorted(n for n, s in summaries.items() if s.get('round_s') and s.get('round_known'))
+    if len(ok) < 2:
+        return None
+    a, b = summaries[ok[0]], summaries[ok[-1]]
+    x = b['round_s'] / a['round_s']
+    return ('scale: from %d to %d robots a round of updates grew x%.1f (linear: x%.0f); for maps of '
+            'equal size x%.1f (their maps had %.0f and %.0f known cells on average)'
+            % (ok[0], ok[-1], x, ok[-1] / float(ok[0]), x * a['round_known'] / b['round_known'],
+               a['round_known'], b['round_known']))
 
 
 def detail_lines(run: dict, s: dict) -> List[str]:
@@ -599,14 +627,18 @@ def team(world, robots: int, seed: int) -> List[Robot]:
             for k, (g, T) in enumerate(pieces_windows(world, robots, WINDOW, seed))]
 
 
-def run_team(robots: int, rounds: int, world_name: str, seed: int, max_s: float, maps_dir: str) -> dict:
-    """One team size's run in this process (module docstring); returns its record."""
+def run_team(robots: int, rounds: int, world_name: str, seed: int, max_s: float, maps_dir: str,
+             rate: float = 0.0) -> dict:
+    """One team size's run in this process (module docstring); returns its record. ``rate``:
+    estimation cycles per second (Hz; 0: back to back; None: the node's default,
+    ``MergeConfig().estimation_rate``)."""
     from multi_map_merge.core.config import MergeConfig
     from multi_map_merge.core.mapio import save_map
     from multi_map_merge.core.merger import MapMerger
     from multi_map_merge.core.transforms import pose_distance
     from multi_map_merge.core.workers import start_pool
     cfg = MergeConfig()
+    rate = cfg.estimation_rate if rate is None else rate
     # the worker pool forked before any thread, as the node does before rospy starts
     start_pool(cfg.workers)
     world = world_map(world_name)
@@ -627,23 +659,29 @@ def run_team(robots: int, rounds: int, world_name: str, seed: int, max_s: float,
     cold_end, cold_placed = None, 0
     joiner_at = joiner_placed = None
     stop_why = ''
+    period = 1.0 / rate if rate > 0 else 0.0
+    next_start = 0.0      # the node's next cycle starts a period after the last one started
     try:
         while True:
             while True:
                 with feeder.cond:
-                    if feeder.seq != seen or feeder.now() >= max_s:
+                    now = feeder.now()
+                    if (feeder.seq != seen and now >= next_start) or now >= max_s:
                         seen = feeder.seq
                         break
-                # nothing new: spare time refreshes the stalest links, a slice at a time
+                # spare time refreshes the stalest links: until the period ends (less the node's
+                # margin) as the node does, or a slice at a time while no map is new
                 start = feeder.now()
-                merger.refresh(REFRESH_SLICE)
+                budget = next_start - REFRESH_MARGIN - start if period else 0.0
+                merger.refresh(budget if budget > 0 else REFRESH_SLICE)
                 spent, pairs = timers.take()
                 if pairs:
                     refreshes.append({'start': start, 'end': feeder.now(), 'pairs': pairs, 'steps': spent})
                     continue
                 with feeder.cond:
-                    if feeder.seq == seen:
-                        feeder.cond.wait(0.2)
+                    wait = next_start - feeder.now()
+                    if feeder.seq == seen or wait > 0:
+                        feeder.cond.wait(min(0.2, wait) if wait > 0 else 0.2)
             if feeder.now() >= max_s:
                 stop_why = 'time limit (%.0f s)' % max_s
                 break
@@ -651,6 +689,7 @@ def run_team(robots: int, rounds: int, world_name: str, seed: int, max_s: float,
             start = feeder.now()
             events = merger.estimate()
             end = feeder.now()
+            next_start = start + period
             placed = sorted(merger.placements())
             spent, pairs = timers.take()
             with feeder.cond:
@@ -713,7 +752,8 @@ def run_team(robots: int, rounds: int, world_name: str, seed: int, max_s: float,
         breakdown['estimate'] = breakdown.get('estimate', 0.0) + c['est_s']
         for k, v in c['steps'].items():
             breakdown[k] = breakdown.get(k, 0.0) + v
-    return {'robots': robots, 'rounds': rounds, 'world': world_name, 'seed': seed, 'cycles': cycles,
+    return {'robots': robots, 'rounds': rounds, 'world': world_name, 'seed': seed, 'estimation_rate': rate,
+            'cycles': cycles,
             'updates': feeder.updates, 'cold_end': cold_end, 'cold_placed': cold_placed,
             'joiner': {'name': joiner, 'scheduled': joiner_at,
                        'arrival': next((u['arrival'] for u in feeder.updates if u['robot'] == joiner), None),
@@ -813,13 +853,15 @@ def main(argv=None) -> int:
     ap.add_argument('--seed', type=int, default=0)
     ap.add_argument('--max-minutes', type=float, default=12.0,
                     help='per team size: the run stops at the end of the first cycle past this')
+    ap.add_argument('--estimation-rate', type=float, default=0.0,
+                    help="estimation cycles per second (Hz), as the node's ~estimation_rate; 0 (default): back to back")
     ap.add_argument('--no-peer', action='store_true', help='do not run m-explore')
     ap.add_argument('--results', default=os.path.join(HERE, 'results'))
     ap.add_argument('--one', type=int, help=argparse.SUPPRESS)       # one team size, in this process
     ap.add_argument('--maps-dir', help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
     if a.one:
-        rec = run_team(a.one, a.rounds, a.world, a.seed, a.max_minutes * 60.0, a.maps_dir)
+        rec = run_team(a.one, a.rounds, a.world, a.seed, a.max_minutes * 60.0, a.maps_dir, a.estimation_rate)
         print(json.dumps(rec))
         return 0
     from report import machine
@@ -839,6 +881,7 @@ def main(argv=None) -> int:
         cmd = [sys.executable, os.path.abspath(__file__), '--one', str(n), '--rounds', str(a.rounds),
                '--world', a.world, '--seed', str(a.seed), '--max-minutes', str(a.max_minutes),
                '--maps-dir', os.path.join(tmp, 'r%d' % n)]
+        cmd += ['--estimation-rate', str(a.estimation_rate)]
         r = subprocess.run(cmd, stdout=subprocess.PIPE, text=True, cwd=REPO)
         if r.returncode != 0:
             line = 'scale: %d robots: INVALID: its process failed (exit %d)' % (n, r.returncode)
@@ -861,6 +904,10 @@ def main(argv=None) -> int:
             print(line, flush=True)
         lines += block
         out['sizes'][str(n)] = {'summary': s, 'run': compact(run), 'mexplore': p}
+    growth = growth_line({int(n): v['summary'] for n, v in out['sizes'].items() if 'summary' in v})
+    if growth:
+        print(growth, flush=True)
+        lines.append(growth)
     out['wall_s'] = time.monotonic() - t_all
     out['loadavg_end'] = list(os.getloadavg())
     lines.append('(%s; %d cores, load %.1f at the start, %.1f at the end; %.0f s in all)' % (

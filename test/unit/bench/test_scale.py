@@ -132,12 +132,12 @@ def run_record(**over):
         took = [c for c in cycles if c['end'] + 0.3 <= t]
         if took:
             pubs.append(publication(t, dict(took[-1]['taken'])))
-    updates = [{'robot': 'r00', 'version': 1, 'arrival': 5.0, 'placed': True},
-               {'robot': 'r01', 'version': 1, 'arrival': 4.9, 'placed': True},
-               {'robot': 'r02', 'version': 0, 'arrival': 6.0, 'placed': False},
-               {'robot': 'r00', 'version': 2, 'arrival': 10.0, 'placed': True},
-               {'robot': 'r01', 'version': 2, 'arrival': 9.9, 'placed': True},
-               {'robot': 'r02', 'version': 1, 'arrival': 11.0, 'placed': True}]
+    updates = [{'robot': 'r00', 'version': 1, 'arrival': 5.0, 'placed': True, 'known': 120},
+               {'robot': 'r01', 'version': 1, 'arrival': 4.9, 'placed': True, 'known': 130},
+               {'robot': 'r02', 'version': 0, 'arrival': 6.0, 'placed': False, 'known': 100},
+               {'robot': 'r00', 'version': 2, 'arrival': 10.0, 'placed': True, 'known': 140},
+               {'robot': 'r01', 'version': 2, 'arrival': 9.9, 'placed': True, 'known': 150},
+               {'robot': 'r02', 'version': 1, 'arrival': 11.0, 'placed': True, 'known': 110}]
     rec = {'robots': 3, 'rounds': 2, 'cycles': cycles, 'updates': updates, 'cold_end': 2.0, 'cold_placed': 1,
            'joiner': {'name': 'r02', 'arrival': 6.0, 'placed_end': 7.5}, 'reference': 'r00',
            'placed_end': ['r00', 'r01', 'r02'], 'errors': {'r01': (0.02, 0.1), 'r02': (0.05, 0.3)},
@@ -222,3 +222,24 @@ def test_the_json_keeps_each_update_with_its_two_stalenesses():
     row = dict(zip(out['update_fields'], out['updates'][0]))
     assert row['robot'] == 'r00' and row['version'] == 1 and row['shown_s'] == 1.5 and row['taken_s'] == 1.0
     assert out['publishes'][0] == [2.49, 2.5]
+
+
+def test_growth_is_measured_and_for_maps_of_equal_size():
+    # 8 robots whose maps average 40,000 known cells, 64 whose maps average 60,000: a round
+    # x9 as measured is x6 for maps of equal size
+    line = scale.growth_line({8: {'round_s': 0.4, 'round_known': 40000.0},
+                              16: {'round_s': 1.0, 'round_known': 50000.0},
+                              64: {'round_s': 3.6, 'round_known': 60000.0}})
+    assert line == ('scale: from 8 to 64 robots a round of updates grew x9.0 (linear: x8); for maps of '
+                    'equal size x6.0 (their maps had 40000 and 60000 known cells on average)')
+    # a size whose round is INVALID does not count; fewer than two sizes: no line
+    assert scale.growth_line({8: {'round_s': 0.4, 'round_known': 4.0}, 64: {'invalid': {'round': 'x'}}}) is None
+    assert 'from 8 to 16 robots' in scale.growth_line({8: {'round_s': 0.4, 'round_known': 4.0},
+                                                       16: {'round_s': 0.8, 'round_known': 4.0},
+                                                       64: {'invalid': {'round': 'x'}}})
+
+
+def test_a_run_reports_the_mean_known_cells_of_the_maps_its_rounds_took():
+    # the versions placed when they came, in rounds 1 and 2 (r02's first map was not placed yet)
+    s = scale.summarise(run_record())
+    assert abs(s['round_known'] - (120 + 130 + 140 + 150 + 110) / 5.0) < 1e-9
