@@ -868,6 +868,8 @@ def main(argv=None) -> int:
     sizes = [int(s) for s in a.sizes.split(',') if s.strip()]
     if any(s < 3 for s in sizes) or a.rounds < 1:
         ap.error('every team size needs at least 3 robots (a reference, another, the joiner), --rounds >= 1')
+    if not a.estimation_rate >= 0:
+        ap.error('--estimation-rate must be >= 0 Hz (0: cycles back to back), not %r' % a.estimation_rate)
     os.makedirs(a.results, exist_ok=True)
     tmp = tempfile.mkdtemp(prefix='scale_')
     out = {'machine': machine(), 'loadavg_start': list(os.getloadavg()), 'options': vars(a),

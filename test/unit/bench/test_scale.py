@@ -243,3 +243,14 @@ def test_a_run_reports_the_mean_known_cells_of_the_maps_its_rounds_took():
     # the versions placed when they came, in rounds 1 and 2 (r02's first map was not placed yet)
     s = scale.summarise(run_record())
     assert abs(s['round_known'] - (120 + 130 + 140 + 150 + 110) / 5.0) < 1e-9
+
+
+def test_a_negative_estimation_rate_is_refused(capsys):
+    for bad in ('-1', 'nan'):
+        try:
+            scale.main(['--estimation-rate', bad, '--no-peer', '--sizes', '8'])
+        except SystemExit as e:
+            assert e.code == 2
+        else:
+            raise AssertionError('--estimation-rate %s was taken' % bad)
+        assert '--estimation-rate must be >= 0 Hz' in capsys.readouterr().err
