@@ -34,14 +34,11 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import itertools
-import json
 import logging
 import math
 import os
 import shutil
-import signal
 import statistics
-import subprocess
 import sys
 import tempfile
 import time
@@ -55,6 +52,7 @@ import inputs  # noqa: E402  (puts the package's src on sys.path)
 from multi_map_merge.core import workers  # noqa: E402
 from multi_map_merge.core.config import MergeConfig  # noqa: E402
 from multi_map_merge.core.robot_map import RobotMap  # noqa: E402
+from multi_map_merge.lab.loopback_cluster import LoopbackCluster  # noqa: E402
 from multi_map_merge.runtime import cluster  # noqa: E402
 
 SRC = os.path.join(inputs.REPO, 'src')
@@ -62,82 +60,6 @@ RESULTS = os.path.join(HERE, 'results', 'cluster_overhead.txt')
 ROWS = ['house 4', 'intel 4', 'intel-sized x4']
 WORKERS = 2                    # processes of the local pool, and workers of the cluster
 TASK = 'run_on_worker'         # the key prefix of the tasks runtime/cluster.py submits
-
-
-class LoopbackCluster:
-    """A Dask scheduler and workers on 127.0.0.1, each a process of its own group, and a
-    client of this script's own to ask the scheduler which tasks it finished."""
-
-    def __init__(self, n_workers: int, timeout: float = 90.0):
-        self.tmp = tempfile.mkdtemp(prefix='mmm_cluster_overhead_')
-        self.env = dict(os.environ, PYTHONPATH=os.pathsep.join(
-            [SRC] + [p for p in os.environ.get('PYTHONPATH', '').split(os.pathsep) if p]))
-        self.procs = []
-        self.client = None
-        try:
-            self._up(n_workers, timeout)
-        except BaseException:
-            self.stop()
-            raise
-
-    def _up(self, n_workers, timeout):
-        import distributed
-        info = os.path.join(self.tmp, 'scheduler.json')
-        self._start('scheduler', 'distributed.cli.dask_scheduler', '--host', '127.0.0.1', '--port', '0',
-                    '--scheduler-file', info, '--no-dashboard', '--dashboard-address', '127.0.0.1:0')
-        end = time.monotonic() + timeout
-        self.address = None
-        while self.address is None:
-            try:
-                with open(info) as f:
-                    self.address = json.load(f)['address']
-            except (OSError, ValueError, KeyError):   # not written yet, or not whole yet
-                if time.monotonic() > end or self.procs[0].poll() is not None:
-                    raise RuntimeError('the Dask scheduler did not start: %s' % self._log('scheduler')) from None
-                time.sleep(0.1)
-        for i in range(n_workers):
-            self._start('worker%d' % i, 'distributed.cli.dask_worker', self.address, '--nthreads', '1',
-                        '--no-nanny', '--memory-limit', '0', '--no-dashboard', '--name', 'worker%d' % i,
-                        '--local-directory', os.path.join(self.tmp, 'worker%d' % i), '--death-timeout', '10')
-        self.client = distributed.Client(self.address, timeout=30, set_as_default=False)
-        while len(self.client.scheduler_info()['workers']) < n_workers:
-            if time.monotonic() > end:
-                raise RuntimeError('the Dask workers did not join within %.0f s: %s' % (timeout, self._log('worker0')))
-            time.sleep(0.2)
-        self.client.get_task_stream()   # the scheduler records every task from now on
-
-    def _start(self, name, *args):
-        with open(os.path.join(self.tmp, name + '.log'), 'w') as log:
-            self.procs.append(subprocess.Popen([sys.executable, '-m'] + list(args), cwd=self.tmp, env=self.env,
-                                               stdout=log, stderr=subprocess.STDOUT, start_new_session=True))
-
-    def _log(self, name):
-        try:
-            with open(os.path.join(self.tmp, name + '.log')) as f:
-                return f.read()[-2000:]
-        except OSError as e:
-            return str(e)
-
-    def finished(self) -> int:
-        """How many of the pair jobs' tasks the cluster's workers finished so far."""
-        return sum(1 for t in self.client.get_task_stream()
-                   if str(t['key']).startswith(TASK) and t.get('status', 'OK') == 'OK')
-
-    def stop(self):
-        if self.client is not None:
-            try:
-                self.client.close(timeout=10)
-            except Exception:
-                pass
-            self.client = None
-        for p in reversed(self.procs):
-            if p.poll() is None:
-                try:
-                    os.killpg(p.pid, signal.SIGKILL)
-                except ProcessLookupError:
-                    pass
-            p.wait(timeout=30)
-        shutil.rmtree(self.tmp, ignore_errors=True)
 
 
 SAID = []   # every line printed, for --out
@@ -223,8 +145,12 @@ def main(argv=None) -> int:
         return 0
     lines = Lines()
     logging.getLogger(cluster.__name__).addHandler(lines)
-    c = LoopbackCluster(WORKERS)
+    tmp = tempfile.mkdtemp(prefix='mmm_cluster_overhead_')
+    # the workers import the package from this source tree
+    c = LoopbackCluster(tmp, env=dict(os.environ, PYTHONPATH=os.pathsep.join(
+        [SRC] + [p for p in os.environ.get('PYTHONPATH', '').split(os.pathsep) if p])))
     try:
+        c.start(WORKERS)
         local_cfg = MergeConfig(workers=WORKERS)
         dask_cfg = MergeConfig(workers=WORKERS, dask_scheduler=c.address)
         tasks_per_round = sum(len(maps) + len(todo) for _, maps, todo in work)
@@ -235,7 +161,7 @@ def main(argv=None) -> int:
             order = ['local', 'dask'] if rnd % 2 else ['dask', 'local']
             took = {'local': 0.0, 'dask': 0.0}
             for side in order:
-                before = c.finished() if side == 'dask' else 0
+                before = len(c.tasks(TASK)) if side == 'dask' else 0
                 for name, maps, todo in work:
                     s, results = align(local_cfg if side == 'local' else dask_cfg, maps, todo)
                     took[side] += s
@@ -245,7 +171,7 @@ def main(argv=None) -> int:
                         identical = False
                         say('  %s: the %s pool\'s results differ from the first ones' % (name, side))
                 if side == 'dask':
-                    done = c.finished() - before
+                    done = len(c.tasks(TASK)) - before
                     if done < tasks_per_round:
                         short.append('round %d: %d tasks on the cluster of %d' % (rnd, done, tasks_per_round))
             if rnd:
@@ -273,6 +199,7 @@ def main(argv=None) -> int:
         if cluster._POOL is not None:    # this process's client, before its scheduler goes
             cluster._POOL.close()
         c.stop()
+        shutil.rmtree(tmp, ignore_errors=True)
     say(details)
     say(line)
     if a.out:

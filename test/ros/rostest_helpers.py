@@ -31,6 +31,14 @@ from multi_map_merge.ros.diagnostics import diagnostics_by_robot
 
 NumpyGrid = numpy_msg(OccupancyGrid)
 MERGER = 'map_merge'   # the merger node's name in the rostests (launch/map_merge.launch)
+# four robots on pieces of the Intel map (test_merge_node.py, test_dask_cluster.py): the pose
+# (x m, y m, yaw rad) of each robot's map frame in the world (Intel map) frame
+FOUR_ROBOTS = ['tb3_0', 'tb3_1', 'tb3_2', 'tb3_3']
+FOUR_POSES = [(1.5, -1.0, math.radians(20.0)),
+              (-3.0, 2.0, math.radians(180.0)),
+              (4.0, 3.5, math.radians(-95.0)),
+              (-2.5, -4.0, math.radians(135.0))]
+START_RADIUS = 10.0     # m explored from its start (its frame's origin) in each robot's first map
 
 
 def shared_data() -> str:
@@ -214,6 +222,17 @@ class Listener:
         if s is None or s[1] <= after:
             return None
         return s[0], {kv.key: kv.value for kv in s[0].values}
+
+    def all_merged(self, robots, after=0.0):
+        """robot -> :meth:`status` of every one of ``robots`` if each reported itself merged
+        after ``after``, else None."""
+        out = {}
+        for r in robots:
+            s = self.status(r, after)
+            if s is None or s[1].get('merged') != 'true':
+                return None
+            out[r] = s
+        return out
 
 
 class RobotPlayer:

@@ -19,12 +19,10 @@ TF ``map -> tb3_N/map`` with the true pose:
    with exactly one log line on /rosout, and merges the new map version right.
 
 Skips (with the reason) when ``distributed`` (python3-distributed) cannot be imported."""
-import math
 import os
 import shutil
 import signal
 import subprocess
-import sys
 import tempfile
 import time
 import unittest
@@ -33,8 +31,19 @@ import rospkg
 import rostest
 import yaml
 from rosgraph_msgs.msg import Log
-from rostest_helpers import Collector, PiecesTest, known_cells, stop_launch, union_known_of, wait_until
+from rostest_helpers import (
+    FOUR_POSES,
+    FOUR_ROBOTS,
+    START_RADIUS,
+    Collector,
+    PiecesTest,
+    known_cells,
+    stop_launch,
+    union_known_of,
+    wait_until,
+)
 
+from multi_map_merge.lab.loopback_cluster import LoopbackCluster
 from multi_map_merge.ros.tools import revealed
 
 try:
@@ -46,13 +55,7 @@ except ImportError as e:   # optional: only ~dask_scheduler needs it
                       '~dask_scheduler needs it; install it (Debian/Ubuntu python3-distributed) to run this test' % e)
 
 PKG = 'multi_map_merge'
-ROBOTS = ['tb3_0', 'tb3_1', 'tb3_2', 'tb3_3']
-# pose (x m, y m, yaw rad) of each robot's map frame in the world (Intel map) frame: test_merge_node.py's
-POSES = [(1.5, -1.0, math.radians(20.0)),
-         (-3.0, 2.0, math.radians(180.0)),
-         (4.0, 3.5, math.radians(-95.0)),
-         (-2.5, -4.0, math.radians(135.0))]
-START_RADIUS = 10.0     # m explored from its start in each robot's first map (test_merge_node.py's)
+ROBOTS = FOUR_ROBOTS     # on test_merge_node.py's pieces of the Intel map
 TASK = 'run_on_worker'  # the key prefix of the node's tasks (runtime/cluster.py submits run_on_worker)
 FALLBACK = 'Dask cluster'   # in the node's one line when the cluster fails (runtime/cluster.py's lost)
 # the merger's rates in this test (config/map_merge.yaml's, faster), as merge_node.test's
@@ -99,75 +102,12 @@ class KillOnTask:
         return d if isinstance(d, dict) and {'address', 'pid', 'key'} <= set(d) else None
 
 
-class DaskCluster:
-    """A scheduler and workers, each a process of its own (its own process group, its output in
-    a log file of ``tmp``), as users start them (``python3 -m distributed.cli.dask_*``), and a
-    client of the test's own to ask the scheduler what ran where."""
-
-    def __init__(self, tmp):
-        self.tmp = tmp
-        self.scheduler = None
-        self.workers = []       # Popen, in start order
-        self.address = None
-        self.client = None
-
-    def _start(self, name, *args):
-        log = open(os.path.join(self.tmp, name + '.log'), 'w')
-        try:
-            return subprocess.Popen([sys.executable, '-m'] + list(args), cwd=self.tmp, stdout=log,
-                                    stderr=subprocess.STDOUT, start_new_session=True)
-        finally:
-            log.close()
-
-    def log(self, name, lines=20):
-        """The last ``lines`` of a process's output (for failure messages)."""
-        try:
-            with open(os.path.join(self.tmp, name + '.log')) as f:
-                return ''.join(f.readlines()[-lines:])
-        except OSError as e:
-            return str(e)
-
-    def start(self, n_workers=2, timeout=90.0):
-        """Start them; returns the scheduler's address once every worker has joined. The
-        scheduler takes a free port of the loopback and writes its address to a file."""
-        info = os.path.join(self.tmp, 'scheduler.json')
-        self.scheduler = self._start('scheduler', 'distributed.cli.dask_scheduler', '--host', '127.0.0.1',
-                                     '--port', '0', '--scheduler-file', info, '--no-dashboard',
-                                     '--dashboard-address', '127.0.0.1:0')
-
-        def address():
-            if self.scheduler.poll() is not None:
-                raise AssertionError('the scheduler ended (%s): %s' % (self.scheduler.returncode,
-                                                                       self.log('scheduler')))
-            try:
-                with open(info) as f:
-                    return yaml.safe_load(f)['address']
-            except (OSError, TypeError, KeyError, yaml.YAMLError):
-                return None
-        self.address = wait_until(address, timeout)
-        assert self.address, 'the scheduler did not start within %.0f s: %s' % (timeout, self.log('scheduler'))
-        for i in range(n_workers):
-            # no nanny: a killed worker stays dead (a nanny would start another)
-            self.workers.append(self._start('worker%d' % i, 'distributed.cli.dask_worker', self.address,
-                                            '--nthreads', '1', '--no-nanny', '--memory-limit', '0',
-                                            '--no-dashboard', '--name', 'worker%d' % i,
-                                            '--local-directory', os.path.join(self.tmp, 'worker%d' % i),
-                                            '--death-timeout', '10'))
-        self.client = distributed.Client(self.address, timeout=30, set_as_default=False)
-        joined = wait_until(lambda: len(self.client.scheduler_info()['workers']) >= n_workers, timeout, 0.2)
-        assert joined, 'the workers did not join within %.0f s: %s' % (
-            timeout, '\n'.join(self.log('worker%d' % i) for i in range(n_workers)))
-        self.client.get_task_stream()   # the scheduler records every task from now on (its task stream)
-        return self.address
+class DaskCluster(LoopbackCluster):
+    """The loopback cluster (:class:`LoopbackCluster`), read for the node's tasks."""
 
     def pids(self):
         """Worker address -> its process id."""
         return self.client.run(os.getpid)
-
-    def tasks(self):
-        """The node's tasks the scheduler saw finished: [(key, worker address)]."""
-        return [(str(t['key']), t['worker']) for t in self.client.get_task_stream()
-                if str(t['key']).startswith(TASK) and t.get('status', 'OK') == 'OK']
 
     def compute_ms(self):
         """The node's finished task -> milliseconds it computed (its task stream's 'compute' span;
@@ -182,12 +122,12 @@ class DaskCluster:
 
     def worker_of(self):
         """The node's finished task -> the worker address that finished it."""
-        return dict(self.tasks())
+        return dict(self.tasks(TASK))
 
     def per_worker(self):
         """Worker address -> how many of the node's tasks it finished."""
         out = {}
-        for _, w in self.tasks():
+        for _, w in self.tasks(TASK):
             out[w] = out.get(w, 0) + 1
         return out
 
@@ -195,36 +135,12 @@ class DaskCluster:
         """Register a worker plugin on every worker."""
         self.client.register_worker_plugin(plugin, name=plugin.name)
 
-    def close_client(self):
-        if self.client is not None:
-            try:
-                self.client.close(timeout=10)
-            except Exception:
-                pass
-            self.client = None
-
-    @staticmethod
-    def kill(p):
-        """SIGKILL to a process's group; waits for it."""
-        if p is not None and p.poll() is None:
-            try:
-                os.killpg(p.pid, signal.SIGKILL)
-            except ProcessLookupError:
-                pass
-        if p is not None:
-            p.wait(timeout=30)
-
-    def stop(self):
-        self.close_client()
-        for p in self.workers + [self.scheduler]:
-            self.kill(p)
-
 
 class TestDaskCluster(PiecesTest):
 
     NODE = 'test_dask_cluster'
     ROBOTS = ROBOTS
-    POSES = POSES
+    POSES = FOUR_POSES
     LATE = ('tb3_3',)   # no map topic until its first map (step 2)
     cluster = None
     launch = None
@@ -276,15 +192,6 @@ class TestDaskCluster(PiecesTest):
     def fallback_lines(self):
         return [m.msg for m in self.logs.messages() if FALLBACK in m.msg]
 
-    def all_merged(self, robots, after):
-        out = {}
-        for r in robots:
-            s = self.listen.status(r, after)
-            if s is None or s[1].get('merged') != 'true':
-                return None
-            out[r] = s
-        return out
-
     def merge_of(self, grids, after, timeout, what):
         """Wait for the robots of ``grids`` (robot k's map, the first len(grids) robots) all
         merged (reported after ``after``) and a /map knowing as many cells as their maps at their
@@ -293,7 +200,7 @@ class TestDaskCluster(PiecesTest):
         pieces = [(g, T) for g, (_, T) in zip(grids, self.pieces)]
         target = union_known_of(self.world, pieces)
         t0 = time.time()
-        merged = wait_until(lambda: self.all_merged(robots, after), timeout)
+        merged = wait_until(lambda: self.listen.all_merged(robots, after), timeout)
         self.assertTrue(merged, '%s: not every robot merged within %.0f s: %s' % (
             what, timeout, {r: (s[0].message if s else None) for r, s in
                             ((r, self.listen.status(r)) for r in robots)}))
@@ -389,7 +296,7 @@ class TestDaskCluster(PiecesTest):
         self.merge_of(grids, time.time(), 90.0, 'the last map grown, the scheduler killed')
         # a few more estimation cycles (2 Hz) later, every robot still merged: still the one line
         t1 = time.time()
-        self.assertTrue(wait_until(lambda: self.all_merged(ROBOTS, t1 + 2.0), 20.0),
+        self.assertTrue(wait_until(lambda: self.listen.all_merged(ROBOTS, t1 + 2.0), 20.0),
                         'not every robot merged 2 s later')
         lines = self.fallback_lines()
         self.assertEqual(len(lines), 1, lines)

@@ -22,6 +22,9 @@ import rospy
 import rostest
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from rostest_helpers import (
+    FOUR_POSES,
+    FOUR_ROBOTS,
+    START_RADIUS,
     PiecesTest,
     expected_canvas,
     fmt_pose,
@@ -38,13 +41,7 @@ from multi_map_merge.ros.convert import covariance_of, quaternion_yaw
 from multi_map_merge.ros.tools import revealed
 
 PKG = 'multi_map_merge'
-ROBOTS = ['tb3_0', 'tb3_1', 'tb3_2', 'tb3_3']
-# pose (x m, y m, yaw rad) of each robot's map frame in the world (Intel map) frame
-POSES = [(1.5, -1.0, math.radians(20.0)),
-         (-3.0, 2.0, math.radians(180.0)),
-         (4.0, 3.5, math.radians(-95.0)),
-         (-2.5, -4.0, math.radians(135.0))]
-START_RADIUS = 10.0     # m explored from its start (its frame's origin) in each robot's first map
+ROBOTS = FOUR_ROBOTS
 MERGE_PERIOD = 0.25     # s, 1 / merge_rate of merge_node.test
 QUIET_PERIODS = 12      # merge periods an unchanged merge must stay silent on /map
 
@@ -53,18 +50,12 @@ class TestMergeNode(PiecesTest):
 
     NODE = 'test_merge_node'
     ROBOTS = ROBOTS
-    POSES = POSES
+    POSES = FOUR_POSES
     LATE = ('tb3_0',)   # its gmapping starts last: no map topic until its first map
     t_full = None
 
     def _all_merged(self, after):
-        out = {}
-        for r in ROBOTS:
-            s = self.listen.status(r, after)
-            if s is None or s[1].get('merged') != 'true':
-                return None
-            out[r] = s
-        return out
+        return self.listen.all_merged(ROBOTS, after)
 
     def test_1_growing_maps_merge(self):
         """Small first maps (merged as they are); then, the merge unchanged, no /map for several
