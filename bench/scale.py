@@ -630,15 +630,13 @@ def team(world, robots: int, seed: int) -> List[Robot]:
 def run_team(robots: int, rounds: int, world_name: str, seed: int, max_s: float, maps_dir: str,
              rate: float = 0.0) -> dict:
     """One team size's run in this process (module docstring); returns its record. ``rate``:
-    estimation cycles per second (Hz; 0: back to back; None: the node's default,
-    ``MergeConfig().estimation_rate``)."""
+    estimation cycles per second (Hz; 0: back to back)."""
     from multi_map_merge.core.config import MergeConfig
     from multi_map_merge.core.mapio import save_map
     from multi_map_merge.core.merger import MapMerger
     from multi_map_merge.core.transforms import pose_distance
     from multi_map_merge.core.workers import start_pool
     cfg = MergeConfig()
-    rate = cfg.estimation_rate if rate is None else rate
     # the worker pool forked before any thread, as the node does before rospy starts
     start_pool(cfg.workers)
     world = world_map(world_name)

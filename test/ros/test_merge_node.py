@@ -54,9 +54,6 @@ class TestMergeNode(PiecesTest):
     LATE = ('tb3_0',)   # its gmapping starts last: no map topic until its first map
     t_full = None
 
-    def _all_merged(self, after):
-        return self.listen.all_merged(ROBOTS, after)
-
     def test_1_growing_maps_merge(self):
         """Small first maps (merged as they are); then, the merge unchanged, no /map for several
         merge periods; then the whole pieces on grown grids with new origins: a new /map with
@@ -79,7 +76,7 @@ class TestMergeNode(PiecesTest):
             if r != 'tb3_1':
                 self.player.publish(r, parts[r])
         # the first (small) maps alone are enough to place every robot
-        first = wait_until(lambda: self._all_merged(t0), 40.0)
+        first = wait_until(lambda: self.listen.all_merged(ROBOTS, t0), 40.0)
         self.assertTrue(first, 'the small first maps were not all merged: %s' % self._messages())
         # /map is sent on change only: with every small map placed and nothing new coming, a few
         # estimation cycles later (2 Hz here) the merge stands still and /map stays silent
@@ -104,7 +101,7 @@ class TestMergeNode(PiecesTest):
                         'with %d known cells)' % (self.listen.maps_received(), known_cells(self.listen.latest_map())))
         print('/map of the small maps: %d known cells; after they grew: %d' % (known_cells(small), known_cells(grown)))
         # a few estimation cycles on the whole maps, then every robot still merged
-        merged = wait_until(lambda: self._all_merged(self.t_full + 3.0), 40.0)
+        merged = wait_until(lambda: self.listen.all_merged(ROBOTS, self.t_full + 3.0), 40.0)
         self.assertTrue(merged, 'not every robot merged: %s' % self._messages())
         for r, (st, kv) in merged.items():
             self.assertEqual(st.level, 0, '%s: %s' % (r, st.message))
@@ -160,7 +157,7 @@ class TestMergeNode(PiecesTest):
         self.assertTrue(resp.success, resp.message)
 
         def remerged():
-            m = self._all_merged(t_reset)
+            m = self.listen.all_merged(ROBOTS, t_reset)
             if not m:
                 return None
             # a placement adopted after the reset: its age is younger than the reset

@@ -188,11 +188,13 @@ def covariances(poses: Dict[str, np.ndarray], links: List[Link], fixed: str,
     H, _ = _normal_equations(*_jacobians(P, ia, ib, Zp, L), ia, ib, N)
     # frames with no path of links to the fixed one have no information: left out
     free = [i for i in range(N) if H[3 * i:3 * i + 3, 3 * i:3 * i + 3].diagonal().min() > 0]
-    sel = np.concatenate([np.arange(3 * i, 3 * i + 3) for i in free]) if free else np.zeros(0, int)
+    if not free:
+        return {}
+    sel = np.concatenate([np.arange(3 * i, 3 * i + 3) for i in free])
     Hs = H[np.ix_(sel, sel)]
     # (H is symmetric: its condition number from its eigenvalues, cheaper than cond's SVD)
-    eig = np.linalg.eigvalsh(Hs) if free else None
-    if not free or eig[0] <= 0 or eig[-1] > 1e12 * eig[0]:
+    eig = np.linalg.eigvalsh(Hs)
+    if eig[0] <= 0 or eig[-1] > 1e12 * eig[0]:
         return {}
     C = np.linalg.inv(Hs)
     return {names[i]: C[3 * k:3 * k + 3, 3 * k:3 * k + 3] for k, i in enumerate(free)}
