@@ -157,7 +157,8 @@ def the_home() -> Home:
     """The demo's home (see the module docstring and docs/demo.md for its plan).
 
     Main block 14.2 x 9.6 m between the outer walls' centre lines, with the study added on the
-    north-west (6.6 x 3.4 m): an L, so that no rotation maps the home onto itself. South of the
+    north-west (6.6 x 3.4 m) and a bay window in the living room: no rotation maps the home onto
+    itself. South of the
     corridor: living room, main bedroom, bathroom; north: kitchen with dining (open to the living
     room through a wide opening), bedroom 1, bedroom 2 with its walk-in closet; the study opens
     off the kitchen. Furniture against a wall reaches into it, so no sliver of floor is left
@@ -166,7 +167,9 @@ def the_home() -> Home:
     SX, SD = 6.6, 3.4                # study wing: width (from x = 0), depth north of the block
     KX = 4.6                         # kitchen's east wall
     CS, CN = 5.2, 6.5                # corridor between y = CS and y = CN
-    outline = ((0.0, 0.0), (W, 0.0), (W, D), (SX, D), (SX, D + SD), (0.0, D + SD))
+    # the living room's bay window: a trapezoid 0.6 m out of the south wall
+    bay = ((2.8, 0.0), (3.2, -0.6), (4.6, -0.6), (5.0, 0.0))
+    outline = ((0.0, 0.0),) + bay + ((W, 0.0), (W, D), (SX, D), (SX, D + SD), (0.0, D + SD))
     o = OUTER_WALL
     walls = [Wall(outline[k], outline[(k + 1) % len(outline)], o) for k in range(len(outline))]
     walls += [
@@ -189,10 +192,10 @@ def the_home() -> Home:
         # living room (0..6.6, 0..5.2)
         solid('corner sofa', (0.0, 0.45), (2.7, 0.45), (2.7, 1.35), (0.95, 1.35), (0.95, 3.1), (0.0, 3.1)),
         on_legs('coffee table', legs(1.95, 2.3, 1.0, 0.55)),
-        solid('armchair', *turned_box(4.0, 0.85, 0.8, 0.8, -25.0)),
-        on_legs('side table', legs(4.9, 1.3, 0.45, 0.45, 10.0)),
+        solid('armchair', *turned_box(4.5, 1.25, 0.8, 0.8, -25.0)),
+        on_legs('side table', legs(5.4, 0.8, 0.45, 0.45, 10.0)),
         solid('tv cabinet', *box(6.0, 1.2, 6.6, 3.0)),
-        solid('bookshelf', *box(4.6, 0.0, 5.9, 0.38)),
+        solid('bookshelf', *box(5.1, 0.0, 6.4, 0.38)),
         solid('plant pot', *disc(0.45, 4.75, 0.2)),
         solid('floor lamp', *disc(3.1, 0.5, 0.12, 8)),
         solid('toy basket', *disc(5.3, 4.1, 0.22, 10)),

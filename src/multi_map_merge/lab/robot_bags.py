@@ -111,7 +111,8 @@ def main(argv: Optional[List[str]] = None) -> int:
             return 2
         team = simulate_carmen(log, cfg)
     else:
-        team, lone = simulate_world(world, cfg)
+        # the lone robot drives about three times as long as the team: not simulated unless written
+        team, lone = simulate_world(world, cfg, lone=not a.no_single)
     if a.lds02_driver:
         shape_rng = np.random.default_rng(a.seed + 1000)
         for run in team + ([lone] if lone is not None else []):
