@@ -157,14 +157,14 @@ def the_home() -> Home:
     """The demo's home (see the module docstring and docs/demo.md for its plan).
 
     Main block 14.2 x 9.6 m between the outer walls' centre lines, with the study added on the
-    north-west (6.6 x 3.4 m) and a bay window in the living room: no rotation maps the home onto
+    north-west (6.6 x 2.8 m) and a bay window in the living room: no rotation maps the home onto
     itself. South of the
     corridor: living room, main bedroom, bathroom; north: kitchen with dining (open to the living
     room through a wide opening), bedroom 1, bedroom 2 with its walk-in closet; the study opens
     off the kitchen. Furniture against a wall reaches into it, so no sliver of floor is left
     between them."""
     W, D = 14.2, 9.6                 # main block, m
-    SX, SD = 6.6, 3.4                # study wing: width (from x = 0), depth north of the block
+    SX, SD = 6.6, 2.8                # study wing: width (from x = 0), depth north of the block
     KX = 4.6                         # kitchen's east wall
     CS, CN = 5.2, 6.5                # corridor between y = CS and y = CN
     # the living room's bay window: a trapezoid 0.6 m out of the south wall
@@ -208,15 +208,15 @@ def the_home() -> Home:
         on_legs('chair', legs(2.25, 8.05, 0.42, 0.42, 10.0)),
         on_legs('chair', legs(3.7, 7.35, 0.42, 0.42, 80.0)),
         solid('bin', *disc(4.25, 9.3, 0.18, 10)),
-        # study (0..6.6, 9.6..13.0)
-        solid('bookcase', *box(0.0, 9.9, 0.4, 12.6)),
-        solid('desk drawers', *box(1.0, 12.4, 1.45, 13.0)),
-        on_legs('desk', legs(1.7, 12.7, 1.45, 0.6)[1:3]),
-        solid('office chair column', *disc(1.75, 11.95, 0.05, 8)),
+        # study (0..6.6, 9.6..12.4)
+        solid('bookcase', *box(0.0, 9.9, 0.4, 12.0)),
+        solid('desk drawers', *box(1.0, 11.8, 1.45, 12.4)),
+        on_legs('desk', legs(1.7, 12.1, 1.45, 0.6)[1:3]),
+        solid('office chair column', *disc(1.75, 11.35, 0.05, 8)),
         solid('boxes', *turned_box(3.4, 10.5, 0.5, 0.4, 20.0)),
         solid('boxes', *turned_box(3.9, 10.15, 0.4, 0.35, -10.0)),
-        solid('upright piano', *box(4.4, 12.45, 5.9, 13.0)),
-        solid('reading chair', *turned_box(5.85, 10.4, 0.75, 0.75, 30.0)),
+        solid('upright piano', *box(4.4, 11.85, 5.9, 12.4)),
+        solid('reading chair', *turned_box(5.85, 10.35, 0.75, 0.75, 30.0)),
         # main bedroom (6.6..11.4, 0..5.2)
         solid('double bed', *box(8.2, 0.0, 9.8, 2.1)),
         solid('night stand', *box(7.7, 0.0, 8.15, 0.45)),
@@ -264,33 +264,50 @@ def the_home() -> Home:
 
 # ---------------------------------------------------------------------------- rasterising
 
-_SHIFT = 4     # OpenCV's fixed-point bits: polygons placed to 1/16 of a cell
-
-
-def _pixels(points: np.ndarray, origin: Point, resolution: float) -> np.ndarray:
-    """Metres (N, 2) -> OpenCV fixed-point pixel coordinates (cell (c, r)'s centre is at (c, r))."""
-    p = (np.asarray(points, np.float64) - np.asarray(origin)) / resolution - 0.5
-    return np.rint(p * (1 << _SHIFT)).astype(np.int32).reshape(-1, 1, 2)
+def _mark(img: np.ndarray, polygon: np.ndarray, value: int, origin: Point, resolution: float) -> None:
+    """Set ``img``'s cells whose centre lies inside ``polygon`` (m, (N, 2)) to ``value`` (an
+    even-odd crossing test on the cell centres of the polygon's bounding box); a polygon that
+    holds no centre (a leg thinner than a cell) marks the cell holding its centroid."""
+    poly = np.asarray(polygon, np.float64)
+    (x0, y0), (x1, y1) = poly.min(0), poly.max(0)
+    h, w = img.shape
+    c0 = max(int(math.floor((x0 - origin[0]) / resolution)), 0)
+    r0 = max(int(math.floor((y0 - origin[1]) / resolution)), 0)
+    c1 = min(int(math.ceil((x1 - origin[0]) / resolution)), w)
+    r1 = min(int(math.ceil((y1 - origin[1]) / resolution)), h)
+    xs = origin[0] + (np.arange(c0, c1) + 0.5) * resolution
+    ys = origin[1] + (np.arange(r0, r1) + 0.5) * resolution
+    X, Y = np.meshgrid(xs, ys)
+    inside = np.zeros(X.shape, bool)
+    for (ax, ay), (bx, by) in zip(poly, np.roll(poly, -1, axis=0)):
+        if ay == by:
+            continue                         # a horizontal edge crosses no horizontal ray
+        crosses = (ay > Y) != (by > Y)
+        x_at = ax + (Y - ay) * (bx - ax) / (by - ay)
+        inside ^= crosses & (X < x_at)
+    img[r0:r1, c0:c1][inside] = value
+    if not inside.any():
+        cx, cy = poly.mean(0)
+        img[int((cy - origin[1]) // resolution), int((cx - origin[0]) // resolution)] = value
 
 
 def rasterise(home: Optional[Home] = None, resolution: float = RESOLUTION, margin: float = MARGIN) -> Grid:
     """The home as an occupancy grid in frame ``home`` (OccupancyGrid order, row 0 south):
     walls and furniture 100, the floor inside the outer walls 0, outside -1. A cell takes a
-    shape's value when its centre is inside the shape; a shape smaller than a cell (a leg)
-    still marks the cell it is in."""
+    shape's value when its centre is inside the shape; a shape that holds no cell centre (a
+    leg) marks the cell holding its centroid. The origin is on the resolution's lattice."""
     home = home or the_home()
     corners = np.array([p for w in home.walls for poly in w.polygons() for p in poly])
     lo = np.floor((corners.min(0) - margin) / resolution) * resolution
     hi = corners.max(0) + margin
     width, height = (int(v) for v in np.ceil((hi - lo) / resolution))
     origin = (float(lo[0]), float(lo[1]))
-    data = np.full((height, width), -1, np.int8)
     img = np.zeros((height, width), np.uint8)   # 0 unknown, 1 floor, 2 solid
-    cv2.fillPoly(img, [_pixels(np.array(home.outline), origin, resolution)], 1, cv2.LINE_8, _SHIFT)
-    solid_polys = [poly for w in home.walls for poly in w.polygons()]
-    solid_polys += [np.array(part) for f in home.furniture for part in f.parts]
-    for poly in solid_polys:
-        cv2.fillPoly(img, [_pixels(poly, origin, resolution)], 2, cv2.LINE_8, _SHIFT)
+    _mark(img, np.array(home.outline), 1, origin, resolution)
+    for poly in [poly for w in home.walls for poly in w.polygons()] + \
+            [np.array(part) for f in home.furniture for part in f.parts]:
+        _mark(img, poly, 2, origin, resolution)
+    data = np.full((height, width), -1, np.int8)
     data[img == 1] = 0
     data[img == 2] = 100
     return Grid(data, resolution, (round(origin[0], 6), round(origin[1], 6), 0.0), FRAME_ID)
