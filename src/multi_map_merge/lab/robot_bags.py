@@ -9,7 +9,7 @@ Writes ``house.bag`` (the team: ``/tb3_N/scan``, ``/tb3_N/odom``, ``/tb3_N/map``
 and ``house.truth.yaml``: the ground-truth map and the pose of every robot's map frame in it,
 read by ``evaluate_map --truth``. Scans are ray cast in the world map (LDS-02), or with
 ``--carmen`` the real scans of a CARMEN log cut into the robots' stretches. The world is by
-default the project's own home (multi_map_merge.lab.home, 117 m2 of floor), written beside the
+default the project's own home (multi_map_merge.lab.home, 119 m2 of free floor), written beside the
 bag as ``home.yaml`` + ``home.pgm`` for the truth file to name; ``aws-small-house`` is the AWS
 small house read in place from ../shared/data (multi_map_merge.lab.worlds); any other value is
 a map_server ``.yaml``. See :mod:`multi_map_merge.lab.simulate` for the models. Exit status 2
