@@ -256,7 +256,7 @@ def the_home() -> Home:
         Room('main bedroom', 6.6, 0.0, 11.4, CS),
         Room('bathroom', 11.4, 0.0, W, CS),
         Room('bedroom 1', KX, CN, 9.2, D),
-        Room('bedroom 2', 9.2, CN, 12.8, D),
+        Room('bedroom 2', 9.2, CN, W, D),             # an L: the closet takes its corner
         Room('closet', 12.8, 8.2, W, D),
     )
     return Home(outline, tuple(walls), tuple(F), rooms)

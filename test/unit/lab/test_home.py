@@ -37,7 +37,7 @@ def test_free_floor_is_the_papers_117_m2(grid):
     assert abs(area - PAPER_AREA) <= 0.1 * PAPER_AREA, area
     # the rooms' floor (between the walls' centre lines) is more: walls and furniture take some
     rooms = sum((r.x1 - r.x0) * (r.y1 - r.y0) for r in H.the_home().rooms if r.name != 'closet')
-    assert area < rooms < area + 40.0
+    assert area < rooms < area + 45.0
 
 
 def test_walls_are_closed(grid):
