@@ -104,10 +104,11 @@ bench: build
 	  && python3 bench/cluster_overhead.py -o bench/results/cluster_overhead.txt
 
 # The paper's experiment as a benchmark (not part of `make test`): 4 Turtlebot3s merged vs 1 alone,
-# every map made by real gmapping (slam_gmapping_replay, every scan), 5 seeds x 2 worlds (the AWS
-# small house, the Intel lab of ../shared/data), against the rigid bound and m-explore's and MRPT's
+# every map made by real gmapping (slam_gmapping_replay, every scan), 5 seeds x 2 worlds (the
+# project's own home, the Intel lab of ../shared/data), against the rigid bound and m-explore's and MRPT's
 # merges; writes bench/results/accuracy.{json,md,txt}. Bags and maps are cached in /tmp/mmm_accuracy.
-# ACCURACY_ARGS=--quick: 1 seed, the house only (accuracy_quick.*); see bench/README.md.
+# ACCURACY_ARGS=--quick: 1 seed, the home only (accuracy_quick.*); --worlds home,house,intel adds the
+# AWS small house of ../shared/data; see bench/README.md.
 ACCURACY_ARGS ?=
 accuracy: build gmapping
 	@$(ROS_ENV) && cd $(CURDIR) && python3 bench/accuracy.py $(ACCURACY_ARGS)
