@@ -102,8 +102,8 @@ from accuracy_summary import (  # noqa: E402
 from bend_summary import OFF  # noqa: E402
 
 WORLDS = {
-    'house': (os.path.join(REPO, 'test', 'data', 'aws_small_house.yaml'),
-              'AWS small house (test/data/aws_small_house.yaml, about 160 m2)'),
+    'house': (os.path.join(SHARED, 'data', 'aws', 'small_house', 'map.yaml'),
+              'AWS small house (../shared/data/aws/small_house/map.yaml, about 160 m2)'),
     'intel': (os.path.join(SHARED, 'data', 'ground_truth', 'intel_gt.yaml'),
               'Intel lab (../shared/data/ground_truth/intel_gt.yaml, 28x28 m)'),
 }

@@ -2,10 +2,10 @@
 
     python3 bench/bend_check.py DIR TRUTH_FILE [--world WORLD.yaml] [--spacing 2.5]
 
-DIR holds the team's final gmapping maps ``tb3_0..3.yaml`` (e.g. ``test/data/house_gmapping_s2``
-or a ``make accuracy`` cache folder ``/tmp/mmm_accuracy/gmapping/house-s2-...``); TRUTH_FILE is
-the bag generator's truth file (each robot's start in the world). Prints the merged Fitness
-(lab/evaluate, as make accuracy scores it) of:
+DIR holds the team's final gmapping maps ``tb3_0..3.yaml`` (e.g. a ``make accuracy`` cache
+folder ``/tmp/mmm_accuracy/gmapping/house-s2-...``); TRUTH_FILE is the bag generator's truth file
+(each robot's start in the world). Prints the merged Fitness (lab/evaluate, as make accuracy
+scores it) of:
 
 - **rigid**: our placements composited rigidly (``bend_maps`` false);
 - **bent**: the same placements with every map bent onto the others (``bend_maps`` true);
@@ -40,7 +40,7 @@ from multi_map_merge.core.merger import MapMerger  # noqa: E402
 from multi_map_merge.core.transforms import apply, cell_to_metric, inverse, se2  # noqa: E402
 
 TEAM = ['tb3_0', 'tb3_1', 'tb3_2', 'tb3_3']
-HOUSE = os.path.join(os.path.dirname(HERE), 'test', 'data', 'aws_small_house.yaml')
+HOUSE = os.path.join(os.path.dirname(os.path.dirname(HERE)), 'shared', 'data', 'aws', 'small_house', 'map.yaml')
 
 
 def bent_grid(maps, poses, fields, cfg):
@@ -87,7 +87,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog='bend_check.py', description=__doc__.split('\n\n')[0])
     ap.add_argument('dir', help='folder with tb3_0..3.yaml')
     ap.add_argument('truth_file', help="the bag generator's truth file (robots' starts)")
-    ap.add_argument('--world', default=HOUSE, help='the ground-truth map (default the AWS house)')
+    ap.add_argument('--world', default=HOUSE, help='the ground-truth map (default ../shared/data/aws/small_house)')
     ap.add_argument('--spacing', type=float, default=MergeConfig().bend_node_spacing, help='metres between nodes')
     a = ap.parse_args(argv)
     world = load_map(a.world)
