@@ -3,7 +3,7 @@
 toolbar (see rviz_screenshot.test).
 
 The merger runs on the three Turtlebot3s' gmapping maps of a maze (../shared/data/tb3_dans_maze, read
-in place, published by ``publish_maps``; skipped where absent). rviz is started as
+in place and published by ``publish_maps``, which this test starts; skipped where absent). rviz is started as
 turtlebot3_multi_slam.launch starts it:
 ``rosrun multi_map_merge robots_rviz --robots 'tb3_0 tb3_1 tb3_2'``, which writes its config from
 rviz/multi_map_merge.rviz (one map display and one prior tool per robot) and runs rviz on it. This
@@ -231,7 +231,7 @@ def rgb_of(text):
 class TestRvizScreenshot(unittest.TestCase):
 
     def setUp(self):
-        shared_file('tb3_dans_maze')   # the maze maps rviz_screenshot.test publishes
+        self.maze = shared_file('tb3_dans_maze')
         self.t0 = time.time()
         self.procs = []
         self.fbdir = tempfile.mkdtemp(prefix='rviz_screenshot_')
@@ -248,6 +248,8 @@ class TestRvizScreenshot(unittest.TestCase):
         self.tf_listener = tf2_ros.TransformListener(self.tf)
         self.log_dir = rospkg.get_log_dir()
         os.makedirs(self.log_dir, exist_ok=True)
+        self._start('publish_maps', ['rosrun', PKG, 'publish_maps', '--steps', '1', '--period', '2']
+                    + ['%s:%s' % (r, os.path.join(self.maze, '%s_map.yaml' % r)) for r in ROBOTS])
 
     def tearDown(self):
         for p, log in reversed(self.procs):
