@@ -53,16 +53,19 @@ def merged_drifting(house_team, monkeypatch=None, agree=None):
 
 @pytest.mark.slow
 def test_drifting_maps_a_robot_the_gate_refused_is_placed_where_it_started(house_team, monkeypatch):
-    """The house, seed 2, four simulated robots' drifting maps (conftest.house_team): every link of
-    tb3_3 has too little evidence for the gate (11-12 inliers agreeing 0.89-0.95, under the 0.96
-    it asks); alone each is refused (tb3_3 stays unmerged), together they put it within
-    centimetres of where it started, inside its 95% ellipse (x, y, yaw: the maps drift)."""
+    """The house, seed 2, four simulated robots' drifting maps (conftest.house_team): tb3_3's links
+    have too little evidence for the gate (11-13 inliers agreeing 0.89-0.95, under the 0.96 it
+    asks; with OpenCV 4.2 its link to tb3_2 is refused as disagreeing instead); alone each is
+    refused (tb3_3 stays unmerged), together they put it within centimetres of where it started,
+    inside its 95% ellipse (x, y, yaw: the maps drift)."""
     starts = {r: se2(*v) for r, v in house_team[1].items()}
     m = merged_drifting(house_team, monkeypatch, (-1.0, -1.0))
     assert 'tb3_3' not in m.placements()
+    # every link of tb3_3 refused, at least two of them by the evidence gate alone
     refused = {pair: r for pair, r in m.pair_results().items() if 'tb3_3' in pair}
-    assert len(refused) == 3 and all(not r.accepted and r.reason.startswith('too little evidence')
-                                     for r in refused.values()), {p: r.reason for p, r in refused.items()}
+    assert refused and not any(r.accepted for r in refused.values()), refused
+    gate = [p for p, r in refused.items() if r.reason.startswith('too little evidence')]
+    assert len(gate) >= 2, {p: r.reason for p, r in refused.items()}
     m = merged_drifting(house_team, monkeypatch, AGREE)
     pl = m.placements()
     assert set(pl) == {'tb3_0', 'tb3_1', 'tb3_2', 'tb3_3'}
