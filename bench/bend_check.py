@@ -2,10 +2,10 @@
 
     python3 bench/bend_check.py DIR TRUTH_FILE [--world WORLD.yaml] [--spacing 2.5]   (default world: TRUTH_FILE's)
 
-DIR holds the team's final gmapping maps ``tb3_0..3.yaml`` (e.g. ``test/data/house_gmapping_s2``
-or a ``make accuracy`` cache folder ``/tmp/mmm_accuracy/gmapping/house-s2-...``); TRUTH_FILE is
-the bag generator's truth file (each robot's start in the world). Prints the merged Fitness
-(lab/evaluate, as make accuracy scores it) of:
+DIR holds the team's final gmapping maps ``tb3_0..3.yaml`` (e.g. a ``make accuracy`` cache
+folder ``/tmp/mmm_accuracy/gmapping/house-s2-...``); TRUTH_FILE is the bag generator's truth file
+(each robot's start in the world). Prints the merged Fitness (lab/evaluate, as make accuracy
+scores it) of:
 
 - **rigid**: our placements composited rigidly (``bend_maps`` false);
 - **bent**: the same placements with every map bent onto the others (``bend_maps`` true);

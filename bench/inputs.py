@@ -22,13 +22,15 @@ from multi_map_merge.core.mapio import load_map, save_map  # noqa: E402
 from multi_map_merge.lab.pieces import cut_piece, pieces_windows, random_poses, split_rects  # noqa: E402
 
 
-def world_map(name):
-    """A ground-truth map from ../shared/data, or the project's own intel map; None if absent."""
-    own = {'intel': os.path.join(REPO, 'test', 'data', 'intel.yaml')}
+def world_map(name, required=False):
+    """A ground-truth map of ../shared/data (others' data, read in place); None if absent, or,
+    ``required``, exit naming the missing file."""
     path = os.path.join(DATA, 'ground_truth', '%s_gt.yaml' % name)
-    if not os.path.exists(path):
-        path = own.get(name)
-    return load_map(path) if path and os.path.exists(path) else None
+    if os.path.exists(path):
+        return load_map(path)
+    if required:
+        raise SystemExit("%s is absent: the benchmarks read others' maps in place from ../shared/data" % path)
+    return None
 
 
 def pieces_split(world, n, seed=0, overlap=0.3):
@@ -63,7 +65,7 @@ def configurations(quick=False):
         w = world_map(name)
         if w is not None:
             confs.append(('%s 4' % name, 'size', pieces_split(w, 4)))
-    w = world_map('intel')
+    w = world_map('intel', required=True)
     for n in ([2, 4, 8] if quick else [2, 4, 8, 16, 32]):
         confs.append(('intel-sized x%d' % n, 'count', pieces_windows(w, n)))
     return confs

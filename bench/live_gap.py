@@ -10,7 +10,7 @@ devel/setup.bash, so it needs nothing sourced.
 
 Starts its own roscore (port 11800, another free one if taken) and a map publisher (this script,
 --publish): ``--robots`` robots whose maps (windows of the edmonton ground-truth map, or of the
-shipped intel map without ../shared) grow twice per merge period for the whole window, so that the
+intel one, both in ../shared/data) grow twice per merge period for the whole window, so that the
 merged map changes every period and /map has a reason of content to flow (a node that publishes
 /map only when the merge changed stays silent otherwise); at ``--join-at`` seconds ``--late``
 robots with big maps (windows of half the map, about 1.8 M cells each) join at once: their cold
@@ -325,7 +325,7 @@ def main():
     if a.publish:
         return publisher(json.load(open(a.publish)))
     os.makedirs(a.out, exist_ok=True)
-    world = world_map('edmonton') or world_map('intel')
+    world = world_map('edmonton') or world_map('intel', required=True)
     tmp = tempfile.mkdtemp(prefix='mmm_live_')
     n = a.robots + a.late
     robots = ['tb3_%d' % k for k in range(n)]

@@ -15,8 +15,8 @@ process does not is one of:
   library       pages of a library file that only the workers touched (OpenCV code the node
                 never runs: shared by the workers, counted once in the tree)
 by the mapping it is in ([heap], [anon]: Python's and numpy's arenas, lib-rw: a library's
-written data). Prints one line per worker and the tree's total. Needs ../shared/data for rows
-other than the shipped intel map.
+written data). Prints one line per worker and the tree's total. Needs ../shared/data (the maps of
+every row).
 """
 from __future__ import annotations
 

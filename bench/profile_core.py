@@ -26,10 +26,10 @@ import inputs  # noqa: E402
 CONFIGS = {
     'house4': lambda: [(inputs.load_map(p), None) for p in sorted(
         __import__('glob').glob(os.path.join(inputs.DATA, 'tb3_house', 'tb3_*_map.yaml')))],
-    'intel4': lambda: inputs.pieces_split(inputs.world_map('intel'), 4),
-    'edmonton4': lambda: inputs.pieces_split(inputs.world_map('edmonton'), 4),
-    'intel8': lambda: inputs.pieces_windows(inputs.world_map('intel'), 8),
-    'intel16': lambda: inputs.pieces_windows(inputs.world_map('intel'), 16),
+    'intel4': lambda: inputs.pieces_split(inputs.world_map('intel', required=True), 4),
+    'edmonton4': lambda: inputs.pieces_split(inputs.world_map('edmonton', required=True), 4),
+    'intel8': lambda: inputs.pieces_windows(inputs.world_map('intel', required=True), 8),
+    'intel16': lambda: inputs.pieces_windows(inputs.world_map('intel', required=True), 16),
 }
 
 

@@ -168,8 +168,6 @@ def main():
     os.makedirs(a.out, exist_ok=True)
     t_all = time.time()
     peer_ok, note = (False, 'm-explore not measured (--no-peer)') if a.no_peer else peer.available()
-    if not os.path.isdir(inputs.DATA):
-        note = (note + '; ' if note else '') + ('../shared/data is absent: only the shipped intel map is used')
     if note:
         print('NOTE:', note, flush=True)
     root = tempfile.mkdtemp(prefix='mmm_bench_')

@@ -641,7 +641,7 @@ def run_team(robots: int, rounds: int, world_name: str, seed: int, max_s: float,
     start_pool(cfg.workers)
     world = world_map(world_name)
     if world is None:
-        raise SystemExit('no ground-truth map %r in ../shared/data nor in test/data' % world_name)
+        raise SystemExit('no ground-truth map %r in ../shared/data' % world_name)
     bots = team(world, robots, seed)
     joiner = bots[-1].name
     merger = MapMerger(cfg)

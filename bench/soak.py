@@ -215,7 +215,7 @@ def main():
     if a.publish:
         return publisher(json.load(open(a.publish)))
     os.makedirs(a.out, exist_ok=True)
-    world = world_map('intel')
+    world = world_map('intel', required=True)
     tmp = tempfile.mkdtemp(prefix='mmm_soak_')
     robots = ['tb3_%d' % k for k in range(a.robots)]
     spec = {'speed': a.speed, 'map_interval': a.map_interval, 'grow_s': a.grow_minutes * 60.0, 'robots': []}

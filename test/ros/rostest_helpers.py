@@ -1,5 +1,5 @@
-"""Helpers shared by the rostest scripts in this directory (not a test itself): the shipped
-maps, the shared data, waiting, a listener of the merger's outputs, a player of robots' maps,
+"""Helpers shared by the rostest scripts in this directory (not a test itself): the shared
+data (others' maps, read in place), waiting, a listener of the merger's outputs, a player of robots' maps,
 pieces of a map at known poses, comparisons with the truth, the set-up of a test on such
 pieces (:class:`PiecesTest`), stopping a launch, making a bag of LDS-02 driver scans."""
 import math
@@ -70,14 +70,18 @@ def stop_launch(proc: subprocess.Popen, timeout: float = 20.0) -> None:
         os.killpg(proc.pid, signal.SIGKILL)
 
 
-DATA = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), 'data')   # test/data
+# others' files in ../shared/data (../shared/data/README.md), never shipped with the project
+INTEL_MAP = 'ground_truth/intel_gt.yaml'      # the Intel lab (CARMEN log, rasterised)
+HOUSE_MAP = 'aws/small_house/map.yaml'        # the AWS RoboMaker small house
 
 
-def data_file(name):
-    """A map shipped with the package, under test/data (a missing one is an error, not a skip)."""
-    path = os.path.join(DATA, name)
+def shared_file(*parts: str) -> str:
+    """The path of ``parts`` under :func:`shared_data` (others' data, read in place), or skip the
+    test (unittest.SkipTest, also from setUpClass) with one line naming the missing path."""
+    path = os.path.join(shared_data(), *parts)
     if not os.path.exists(path):
-        raise FileNotFoundError('test map %s is missing' % path)
+        raise unittest.SkipTest("%s is absent: others' data is read in place from ../shared/data, "
+                                "not shipped" % path)
     return path
 
 
@@ -442,7 +446,7 @@ def same_map(a, b):
 # ---------------------------------------------------------------- a test on pieces at known poses
 class PiecesTest(unittest.TestCase):
     """The set-up of a rostest that plays robots carrying pieces of a shipped map cut at known
-    poses (class attributes NODE, ROBOTS, POSES; WORLD, a map in test/data): the world map, the
+    poses (class attributes NODE, ROBOTS, POSES; WORLD, a map in ../shared/data): the world map, the
     pieces (robot k's in frame ``tb3_k/map``), the true pose of every robot's map frame in the
     merged frame (the reference tb3_0's), the area the pieces cover, a tf2 buffer, a
     :class:`Listener` and a :class:`RobotPlayer` (nothing published yet). Plus the checks of a
@@ -452,12 +456,12 @@ class PiecesTest(unittest.TestCase):
     ROBOTS = ['tb3_0', 'tb3_1']
     LATE = ()    # robots whose map topic appears only with their first map (RobotPlayer)
     POSES = [(0.0, 0.0, 0.0), (0.0, 0.0, 0.0)]
-    WORLD = 'intel.yaml'
+    WORLD = INTEL_MAP
 
     @classmethod
     def setUpClass(cls):
         rospy.init_node(cls.NODE, anonymous=True)
-        cls.world = load_map(data_file(cls.WORLD))
+        cls.world = load_map(shared_file(cls.WORLD))
         cls.pieces = make_pieces(cls.world, len(cls.POSES), cls.POSES)
         cls.T_world_map = cls.pieces[0][1]          # merged frame = reference tb3_0's map frame
         cls.T_true = [np.linalg.inv(cls.T_world_map) @ T for _, T in cls.pieces]

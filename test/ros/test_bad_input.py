@@ -17,7 +17,7 @@ import rospy
 import rostest
 from diagnostic_msgs.msg import DiagnosticStatus
 from rosgraph_msgs.msg import Log
-from rostest_helpers import PiecesTest, data_file, known_cells, lookup, same_map, wait_until
+from rostest_helpers import HOUSE_MAP, PiecesTest, known_cells, lookup, same_map, shared_file, wait_until
 
 from multi_map_merge.core.mapio import load_map
 from multi_map_merge.ros.convert import NumpyGrid, grid_to_msg
@@ -36,7 +36,7 @@ class TestBadInput(PiecesTest):
     @classmethod
     def setUpClass(cls):
         super().setUpClass()
-        cls.house = load_map(data_file('aws_small_house.yaml'))
+        cls.house = load_map(shared_file(HOUSE_MAP))
         cls.logs = []
         cls.log_lock = threading.Lock()
         rospy.Subscriber('/rosout', Log, cls._on_log, queue_size=100)

@@ -9,7 +9,7 @@ import numpy as np
 import rospy
 import rostest
 from nav_msgs.srv import GetMap
-from rostest_helpers import data_file, make_pieces, publish_latched, wait_for_merge
+from rostest_helpers import INTEL_MAP, make_pieces, publish_latched, shared_file, wait_for_merge
 
 from multi_map_merge.core.mapio import load_map
 from multi_map_merge.ros.convert import NumpyGrid
@@ -26,7 +26,7 @@ class TestDynamicMap(unittest.TestCase):
         get_map = rospy.ServiceProxy('/dynamic_map', GetMap)
         with self.assertRaises(rospy.ServiceException):
             get_map()
-        pieces = make_pieces(load_map(data_file('intel.yaml')), 2,
+        pieces = make_pieces(load_map(shared_file(INTEL_MAP)), 2,
                              [(0.0, 0.0, 0.0), (1.0, -2.0, math.radians(60.0))])
         pubs = publish_latched(ROBOTS, [g for g, _ in pieces])  # noqa: F841 (kept: latched maps)
         diag = wait_for_merge(['tb3_1'], timeout=60.0, settle=2.0)

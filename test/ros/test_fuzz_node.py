@@ -11,7 +11,7 @@ import rostest
 from diagnostic_msgs.msg import DiagnosticStatus
 from map_msgs.msg import OccupancyGridUpdate
 from rospy.numpy_msg import numpy_msg
-from rostest_helpers import Listener, RobotPlayer, data_file, make_pieces, same_map, wait_until
+from rostest_helpers import INTEL_MAP, Listener, RobotPlayer, make_pieces, same_map, shared_file, wait_until
 
 from multi_map_merge.core.grid import Grid
 from multi_map_merge.core.mapio import load_map
@@ -25,7 +25,7 @@ class TestFuzzNode(unittest.TestCase):
 
     def test_bad_inputs_change_nothing(self):
         rospy.init_node('test_fuzz_node', anonymous=True)
-        world = load_map(data_file('intel.yaml'))
+        world = load_map(shared_file(INTEL_MAP))
         pieces = make_pieces(world, 2, [(0.5, 1.0, -0.5), (-2.0, 3.0, 2.6)])
         listen = Listener()
         player = RobotPlayer(['tb3_0', 'tb3_1'])

@@ -8,7 +8,7 @@ import unittest
 
 import rospy
 import rostest
-from rostest_helpers import data_file, lookup_transforms, make_pieces, publish_latched, wait_for_merge
+from rostest_helpers import INTEL_MAP, lookup_transforms, make_pieces, publish_latched, shared_file, wait_for_merge
 
 from multi_map_merge.core.mapio import load_map
 from multi_map_merge.core.transforms import xyyaw
@@ -23,7 +23,7 @@ class TestInitPoseDefault(unittest.TestCase):
         init_node('test_init_pose_default')
         self.assertFalse(rospy.get_param('/map_merge/known_init_poses'))
         self.assertEqual(rospy.get_param('/tb3_1/map_merge/init_pose_x'), 7.0)   # the trap is set
-        pieces = make_pieces(load_map(data_file('intel.yaml')), 2, [(0.0, 0.0, 0.0)] * 2)
+        pieces = make_pieces(load_map(shared_file(INTEL_MAP)), 2, [(0.0, 0.0, 0.0)] * 2)
         pubs = publish_latched(ROBOTS, [g for g, _ in pieces])  # noqa: F841 (kept: latched maps)
         diag = wait_for_merge(['tb3_1'], timeout=60.0, settle=2.0)
         self.assertEqual(diag.get('tb3_1', {}).get('merged'), 'true', diag.get('tb3_1'))

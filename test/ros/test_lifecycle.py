@@ -16,7 +16,7 @@ import yaml
 from map_msgs.msg import OccupancyGridUpdate
 from rosgraph_msgs.msg import Log
 from rospy.numpy_msg import numpy_msg
-from rostest_helpers import Listener, RobotPlayer, data_file, known_cells, lookup, make_pieces, wait_until
+from rostest_helpers import INTEL_MAP, Listener, RobotPlayer, known_cells, lookup, make_pieces, shared_file, wait_until
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import Marker, MarkerArray
 
@@ -33,7 +33,7 @@ class TestLifecycle(unittest.TestCase):
     @classmethod
     def setUpClass(cls):
         rospy.init_node('test_lifecycle', anonymous=True)
-        world = load_map(data_file('intel.yaml'))
+        world = load_map(shared_file(INTEL_MAP))
         cls.pieces = make_pieces(world, 2, [(0.5, 1.0, -0.5), (-2.0, 3.0, 2.6)])
         cls.T_true = np.linalg.inv(cls.pieces[0][1]) @ cls.pieces[1][1]
         cls.listen = Listener()

@@ -2,7 +2,8 @@
 """rostest: our node as a drop-in for m-explore's.
 
 m-explore's own launch file for its map_merge node (multirobot_map_merge 2.1.4,
-map_merge/launch/map_merge.launch, shipped as test/data/mexplore/map_merge.launch.xml) is read and
+map_merge/launch/map_merge.launch, read in place from ../shared/data/mexplore; skipped where
+absent) is read and
 only the node's ``pkg`` and ``type`` are changed (ElementTree; every other attribute and every
 parameter is checked to be unchanged), then started with roslaunch. Its parameters are
 m-explore's (robot_map_topic, robot_namespace "", world_frame "world", merging_rate 0.5,
@@ -31,7 +32,7 @@ import rospy
 import rostest
 import tf2_ros
 import yaml
-from rostest_helpers import DATA, NumpyGrid, RobotPlayer, data_file, lookup, make_pieces, stop_launch, wait_until
+from rostest_helpers import INTEL_MAP, NumpyGrid, RobotPlayer, lookup, make_pieces, shared_file, stop_launch, wait_until
 
 from multi_map_merge.core.mapio import load_map
 from multi_map_merge.core.transforms import inverse, pose_distance
@@ -39,7 +40,6 @@ from multi_map_merge.core.transforms import inverse, pose_distance
 PKG = 'multi_map_merge'
 ROBOTS = ['tb3_0', 'tb3_1', 'team/tb3_2']   # the last nested (after tb3_0 by name: tb3_0 stays the reference)
 POSES = [(1.5, -1.0, math.radians(20.0)), (-3.0, 2.0, math.radians(180.0)), (4.0, 3.5, math.radians(-95.0))]
-MEXPLORE = os.path.join(DATA, 'mexplore', 'map_merge.launch.xml')   # renamed: see ATTRIBUTION.md
 
 
 def dropin_launch(path):
@@ -61,8 +61,9 @@ def dropin_launch(path):
 class TestMexploreDropin(unittest.TestCase):
 
     def test_mexplore_launch_file_runs_our_node(self):
+        mexplore = shared_file('mexplore', 'map_merge.launch')
         rospy.init_node('test_mexplore_dropin', anonymous=True)
-        world = load_map(data_file('intel.yaml'))
+        world = load_map(shared_file(INTEL_MAP))
         pieces = make_pieces(world, 3, POSES)
         truth = {r: inverse(pieces[0][1]) @ T for r, (_, T) in zip(ROBOTS, pieces)}
         self.piece_known = [int((g.data >= 0).sum()) for g, _ in pieces]
@@ -76,7 +77,7 @@ class TestMexploreDropin(unittest.TestCase):
         with tempfile.TemporaryDirectory() as d:
             launch = os.path.join(d, 'map_merge.launch')
             with open(launch, 'w') as f:
-                f.write(dropin_launch(MEXPLORE))
+                f.write(dropin_launch(mexplore))
             out = open(os.path.join(d, 'roslaunch.out'), 'w+')
             # the node's output is "screen" in m-explore's file: its log lines, from the first
             proc = subprocess.Popen(['roslaunch', launch], start_new_session=True, stdout=out,

@@ -39,7 +39,7 @@ from nav_msgs.msg import OccupancyGrid
 from nav_msgs.srv import GetPlan
 from rosgraph_msgs.msg import Clock
 from rospy.numpy_msg import numpy_msg
-from rostest_helpers import lookup, stop_launch
+from rostest_helpers import lookup, shared_file, stop_launch
 from test_tb3_real_launch import two_robot_lds02_bag
 from tf2_msgs.msg import TFMessage
 
@@ -201,8 +201,7 @@ class TestMoveBaseMerged(unittest.TestCase):
         buf = tf2_ros.Buffer(rospy.Duration(60.0))
         tf2_ros.TransformListener(buf)
         watch = Watch()
-        urdf = os.path.join(pkg, 'test', 'data', 'turtlebot3', 'turtlebot3_description', 'urdf',
-                            'turtlebot3_burger.urdf')
+        urdf = shared_file('robotis', 'turtlebot3', 'turtlebot3_description', 'urdf', 'turtlebot3_burger.urdf')
         logs = os.environ.get('ROS_LOG_DIR', tmp)
         t0 = time.time()
         procs = []

@@ -24,7 +24,7 @@ import rostest
 import tf2_ros
 from geometry_msgs.msg import PoseWithCovarianceStamped, TransformStamped
 from rosgraph_msgs.msg import Log
-from rostest_helpers import RobotPlayer, data_file, fmt_pose, lookup, make_pieces, rviz_prior, wait_until
+from rostest_helpers import INTEL_MAP, RobotPlayer, fmt_pose, lookup, make_pieces, rviz_prior, shared_file, wait_until
 from sensor_msgs.msg import LaserScan
 from std_msgs.msg import Empty
 
@@ -43,7 +43,7 @@ class TestPriorTopic(unittest.TestCase):
     @classmethod
     def setUpClass(cls):
         rospy.init_node('test_prior_topic', anonymous=True)
-        world = load_map(data_file('intel.yaml'))
+        world = load_map(shared_file(INTEL_MAP))
         cls.pieces = make_pieces(world, 2, POSES)
         cls.T_true = inverse(cls.pieces[0][1]) @ cls.pieces[1][1]
         cls.buf = tf2_ros.Buffer(rospy.Duration(30.0))

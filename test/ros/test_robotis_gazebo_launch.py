@@ -2,7 +2,8 @@
 """rostest: ROBOTIS's Gazebo multi-robot merge launch file, as it stands, running our node.
 
 ``turtlebot3_gazebo/launch/multi_map_merge.launch`` (ROBOTIS turtlebot3_simulations, noetic;
-shipped as test/data/turtlebot3_simulations/multi_map_merge.launch.xml, Apache-2.0) is read and
+Apache-2.0, read in place from ../shared/data/robotis/turtlebot3_simulations; skipped where
+absent) is read and
 only its merge node's ``pkg`` and ``type`` are changed to ours (ElementTree; undoing the two gives
 the file's own tree back). Where ROS has no ``tf`` static_transform_publisher executable (Debian
 12), its three identity ``map -> tb3_N/map`` publishers run as ``tf_sender.py`` (the same
@@ -45,14 +46,14 @@ import rostest
 import tf2_ros
 from rosgraph_msgs.msg import Log
 from rostest_helpers import (
-    DATA,
+    HOUSE_MAP,
     MERGER,
     Listener,
     NumpyGrid,
     compare_with_truth,
-    data_file,
     fmt_pose,
     lookup,
+    shared_file,
     stop_launch,
     union_mask_of,
     wait_until,
@@ -65,7 +66,6 @@ from multi_map_merge.lab.pieces import in_world_frame
 from multi_map_merge.ros.convert import grid_to_msg, transform_msg
 
 PKG = 'multi_map_merge'
-ROBOTIS = os.path.join(DATA, 'turtlebot3_simulations', 'multi_map_merge.launch.xml')   # see ATTRIBUTION.md
 ROBOTS = ['tb3_0', 'tb3_1', 'tb3_2']
 # where multi_turtlebot3.launch spawns them (x, y, yaw); multi_map_merge.launch writes x, y and yaw 0
 SPAWN = {'tb3_0': (-7.0, -1.0, 1.57), 'tb3_1': (7.0, -1.0, 1.57), 'tb3_2': (0.5, 3.0, 0.0)}
@@ -112,8 +112,9 @@ def robotis_launch_with_our_node(path, static_tf_stand_in):
 class TestRobotisGazeboLaunch(unittest.TestCase):
 
     def test_robotis_gazebo_merge_launch_with_our_node(self):
+        robotis = shared_file('robotis', 'turtlebot3_simulations', 'multi_map_merge.launch')
         rospy.init_node('test_robotis_gazebo_launch', anonymous=True)
-        self.world = load_map(data_file('aws_small_house.yaml'))
+        self.world = load_map(shared_file(HOUSE_MAP))
         grids = {r: gazebo_map(self.world, r) for r in ROBOTS}
         self.union = union_mask_of(self.world, [(grids[r], np.eye(3)) for r in ROBOTS])
         self.lock = threading.Lock()
@@ -137,7 +138,7 @@ class TestRobotisGazeboLaunch(unittest.TestCase):
         with tempfile.TemporaryDirectory() as d:
             launch = os.path.join(d, 'multi_map_merge.launch')
             with open(launch, 'w') as f:
-                f.write(robotis_launch_with_our_node(ROBOTIS, not have_tf))
+                f.write(robotis_launch_with_our_node(robotis, not have_tf))
             out = open(os.path.join(d, 'roslaunch.out'), 'w+')
             proc = subprocess.Popen(['roslaunch', launch], start_new_session=True, stdout=out,
                                     stderr=subprocess.STDOUT)

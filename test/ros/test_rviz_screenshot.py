@@ -2,8 +2,9 @@
 """rostest: rviz as users get it on a live merge, under Xvfb, judged on a screenshot and on its
 toolbar (see rviz_screenshot.test).
 
-The merger runs on the three Turtlebot3s' gmapping maps of a maze (test/data/tb3_dans_maze,
-published by ``publish_maps``). rviz is started as turtlebot3_multi_slam.launch starts it:
+The merger runs on the three Turtlebot3s' gmapping maps of a maze (../shared/data/tb3_dans_maze, read
+in place and published by ``publish_maps``, which this test starts; skipped where absent). rviz is started as
+turtlebot3_multi_slam.launch starts it:
 ``rosrun multi_map_merge robots_rviz --robots 'tb3_0 tb3_1 tb3_2'``, which writes its config from
 rviz/multi_map_merge.rviz (one map display and one prior tool per robot) and runs rviz on it. This
 test has robots_rviz write that config first (``--write-only``) and reads it, starts Xvfb on a
@@ -52,6 +53,7 @@ import rostest
 import tf2_ros
 import yaml
 from nav_msgs.msg import OccupancyGrid
+from rostest_helpers import shared_file
 
 PKG = 'multi_map_merge'
 ROBOTS = ['tb3_0', 'tb3_1', 'tb3_2']   # what rviz_screenshot.test publishes; tb3_0 is the reference
@@ -229,6 +231,7 @@ def rgb_of(text):
 class TestRvizScreenshot(unittest.TestCase):
 
     def setUp(self):
+        self.maze = shared_file('tb3_dans_maze')
         self.t0 = time.time()
         self.procs = []
         self.fbdir = tempfile.mkdtemp(prefix='rviz_screenshot_')
@@ -245,6 +248,8 @@ class TestRvizScreenshot(unittest.TestCase):
         self.tf_listener = tf2_ros.TransformListener(self.tf)
         self.log_dir = rospkg.get_log_dir()
         os.makedirs(self.log_dir, exist_ok=True)
+        self._start('publish_maps', ['rosrun', PKG, 'publish_maps', '--steps', '1', '--period', '2']
+                    + ['%s:%s' % (r, os.path.join(self.maze, '%s_map.yaml' % r)) for r in ROBOTS])
 
     def tearDown(self):
         for p, log in reversed(self.procs):

@@ -27,7 +27,7 @@ import rospkg
 import rospy
 import rostest
 import tf2_ros
-from rostest_helpers import lookup, skip_without_gmapping, stop_launch
+from rostest_helpers import lookup, shared_file, skip_without_gmapping, stop_launch
 from sensor_msgs.msg import LaserScan
 
 from multi_map_merge.core.transforms import se2
@@ -101,8 +101,7 @@ def run_tb3_launch(test, launch_args=(), launch_log=None, before_stop=None, env=
         rospkg.RosPack().get_path('robot_state_publisher')
     except rospkg.ResourceNotFound:
         test.fail('no robot_state_publisher (Debian: ros-robot-state-publisher, in the Makefile)')
-    urdf = os.path.join(pkg, 'test', 'data', 'turtlebot3', 'turtlebot3_description', 'urdf',
-                        'turtlebot3_burger.urdf')
+    urdf = shared_file('robotis', 'turtlebot3', 'turtlebot3_description', 'urdf', 'turtlebot3_burger.urdf')
     t0 = time.time()
     out = open(launch_log, 'w') if launch_log else subprocess.DEVNULL
     launch = subprocess.Popen(['roslaunch', 'multi_map_merge', 'turtlebot3_multi_slam.launch',

@@ -1,5 +1,5 @@
-"""Shared fixtures and helpers of the unit tests (no ROS master needed): the shipped maps, the
-shared data, a merger run on some maps, pose errors."""
+"""Shared fixtures and helpers of the unit tests (no ROS master needed): the shared data (others'
+maps and launch files, read in place), a merger run on some maps, pose errors."""
 import math
 import os
 import sys
@@ -9,8 +9,13 @@ import pytest
 
 REPO = os.path.abspath(os.path.join(os.path.dirname(__file__), '..', '..'))
 sys.path.insert(0, os.path.join(REPO, 'src'))
-DATA = os.path.join(REPO, 'test', 'data')
 SHARED = os.path.abspath(os.path.join(REPO, '..', 'shared', 'data'))
+# others' files in ../shared/data (../shared/data/README.md), never shipped with the project
+INTEL_MAP = 'ground_truth/intel_gt.yaml'      # the Intel lab (CARMEN log, rasterised)
+HOUSE_MAP = 'aws/small_house/map.yaml'        # the AWS RoboMaker small house
+MAZE = 'tb3_dans_maze'                        # three Turtlebot3s' gmapping maps of a maze, and the whole
+ROBOTIS = 'robotis/turtlebot3'                # ROBOTIS's bringup launch files and the Burger's URDF
+BURGER_XACRO = ROBOTIS + '/turtlebot3_description/urdf/turtlebot3_burger.urdf.xacro'
 
 from multi_map_merge.core.config import MergeConfig  # noqa: E402
 from multi_map_merge.core.mapio import load_map  # noqa: E402
@@ -18,12 +23,19 @@ from multi_map_merge.core.merger import MapMerger  # noqa: E402
 from multi_map_merge.core.transforms import pose_distance  # noqa: E402
 
 
+def shared_file(*parts: str) -> str:
+    """The path of ``parts`` under ../shared/data (others' data, beside CI's clone but not part of
+    the project: read in place), or skip the test with one line naming the missing path."""
+    path = os.path.join(SHARED, *parts)
+    if not os.path.exists(path):
+        pytest.skip('%s is absent: others\' data is read in place from ../shared/data, not shipped' % path)
+    return path
+
+
 @pytest.fixture
 def shared_data():
-    """../shared/data, or skip: it is beside CI's clone but not part of the project."""
-    if not os.path.isdir(SHARED):
-        pytest.skip('../shared/data is absent: real multi-robot maps not available here')
-    return SHARED
+    """../shared/data, or skip."""
+    return shared_file()
 
 
 @pytest.fixture
@@ -50,16 +62,45 @@ def pytest_configure(config):
                                        '-m "not slow" skips it')
 
 
+@pytest.fixture
+def house_yaml():
+    """The AWS small house's map_server .yaml (../shared/data), or skip."""
+    return shared_file(HOUSE_MAP)
+
+
 @pytest.fixture(scope='session')
 def intel():
-    """The Intel lab's map shipped in test/data (CARMEN, rasterised)."""
-    return load_map(os.path.join(DATA, 'intel.yaml'))
+    """The Intel lab's map (CARMEN, rasterised; ../shared/data), or skip."""
+    return load_map(shared_file(INTEL_MAP))
 
 
 @pytest.fixture(scope='session')
 def house():
-    """The AWS small house's map shipped in test/data."""
-    return load_map(os.path.join(DATA, 'aws_small_house.yaml'))
+    """The AWS small house's map (../shared/data), or skip."""
+    return load_map(shared_file(HOUSE_MAP))
+
+
+# the simulated team of the house tests (test_corroborate, test_drift, test_spawn, test_deform):
+# make_robot_bags' seed 2 with its SLAM model's drift scaled by this (its --slam-drift)
+HOUSE_TEAM_DRIFT = 6.0
+
+
+@pytest.fixture(scope='session')
+def house_team(house):
+    """Four simulated Turtlebot3s' final maps of the AWS house and where each started, as
+    ``make_robot_bags --robots 4 --seed 2 --slam-drift 6`` makes them (lab/simulate: the robots
+    start within 1 m of each other, headings apart, and explore apart; each map drawn at its
+    robot's drifting SLAM poses, so the maps bend): ({robot: Grid in its own map frame},
+    {robot: its start (x, y, yaw) in the house}). About 30 s, once a session."""
+    from multi_map_merge.lab import simulate as sim
+    cfg = sim.SimConfig(robots=4, seed=2)
+    k = HOUSE_TEAM_DRIFT
+    cfg.slam_trans_var *= k * k
+    cfg.slam_rot_var *= k * k
+    cfg.slam_turn_var *= k * k
+    cfg.slam_bias *= k
+    team, _ = sim.simulate_world(house, cfg)
+    return {r.name: r.maps[-1][1] for r in team}, {r.name: list(r.start) for r in team}
 
 
 def merged(maps, **config):

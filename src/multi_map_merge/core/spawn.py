@@ -30,7 +30,7 @@ from .transforms import inverse, pose_distance, se2
 from .verify import pose_on_grids
 
 #: agreement at identity below which two overlapping maps are not in one frame. Measured on the
-#: AWS small house: the four real gmapping maps of test/data/house_gmapping_s2 in their own
+#: AWS small house: the four real gmapping maps of make accuracy's seed 2 in their own
 #: frames (starts within 1 m, headings 85-260 degrees apart) agree 0.06-0.32 at identity; the
 #: same maps carried into the world frame by their true starts, 0.78-1.00 (gmapping's drift);
 #: pieces of the house map in the world frame, moved 0.2 m or turned 3 degrees, 0.67-0.83

@@ -6,7 +6,7 @@ import os
 
 import numpy as np
 import pytest
-from conftest import DATA, merged, pose_error
+from conftest import HOUSE_MAP, merged, pose_error, shared_file
 
 from multi_map_merge.core.grid import Grid, known_bbox
 from multi_map_merge.core.mapio import load_map
@@ -17,7 +17,7 @@ from multi_map_merge.lab.pieces import cut_piece
 def look_alike_building():
     """A building of two identical halves (the second turned by 180 degrees), the same half
     alone, and a robot's map of part of that half in its own frame (pose T in the half's)."""
-    w = load_map(os.path.join(DATA, 'aws_small_house.yaml'))
+    w = load_map(shared_file(HOUSE_MAP))
     r0, r1, c0, c1 = known_bbox(w.levels())
     half = w.data[r0:r1, c0:(c0 + c1) // 2]
     gap = np.full((half.shape[0], 10), -1, np.int8)

@@ -2,16 +2,17 @@ import os
 import shutil
 
 import pytest
-from conftest import DATA
+from conftest import INTEL_MAP, shared_file
 
 from multi_map_merge.cli import merge_maps as cli
 
 
 @pytest.fixture
 def good(tmp_path):
-    for n in ('intel.yaml', 'intel.pgm'):
-        shutil.copy(os.path.join(DATA, n), tmp_path / n)
-    return str(tmp_path / 'intel.yaml')
+    yaml = shared_file(INTEL_MAP)
+    for n in (yaml, yaml[:-len('yaml')] + 'pgm'):
+        shutil.copy(n, tmp_path / os.path.basename(n))
+    return str(tmp_path / os.path.basename(yaml))
 
 
 def run(capsys, args):
@@ -49,14 +50,14 @@ def test_missing_or_garbage_pgm(tmp_path, capsys, good):
 
 @pytest.mark.parametrize('res', ['0', '-1', '.nan'])
 def test_bad_resolution(tmp_path, capsys, good, res):
-    shutil.copy(os.path.join(DATA, 'intel.pgm'), tmp_path / 'r.pgm')
+    shutil.copy(good[:-len('yaml')] + 'pgm', tmp_path / 'r.pgm')
     bad = write(tmp_path, 'r.yaml', 'image: r.pgm\nresolution: %s\norigin: [0, 0, 0]\n' % res)
     code, err = run(capsys, [good, bad, '-o', str(tmp_path / 'o.yaml')])
     assert code == 2 and 'r.yaml' in err and 'resolution' in err
 
 
 def test_nan_origin(tmp_path, capsys, good):
-    shutil.copy(os.path.join(DATA, 'intel.pgm'), tmp_path / 'n.pgm')
+    shutil.copy(good[:-len('yaml')] + 'pgm', tmp_path / 'n.pgm')
     bad = write(tmp_path, 'n.yaml', 'image: n.pgm\nresolution: 0.05\norigin: [.nan, 0, 0]\n')
     code, err = run(capsys, [good, bad, '-o', str(tmp_path / 'o.yaml')])
     assert code == 2 and 'n.yaml' in err and 'origin' in err
@@ -64,9 +65,9 @@ def test_nan_origin(tmp_path, capsys, good):
 
 def test_duplicate_stems_and_unknown_reference(tmp_path, capsys, good):
     os.makedirs(tmp_path / 'b')
-    for n in ('intel.yaml', 'intel.pgm'):
-        shutil.copy(os.path.join(DATA, n), tmp_path / 'b' / n)
-    code, err = run(capsys, [good, str(tmp_path / 'b' / 'intel.yaml'), '-o', str(tmp_path / 'o.yaml')])
+    for n in (good, good[:-len('yaml')] + 'pgm'):
+        shutil.copy(n, tmp_path / 'b' / os.path.basename(n))
+    code, err = run(capsys, [good, str(tmp_path / 'b' / os.path.basename(good)), '-o', str(tmp_path / 'o.yaml')])
     assert code == 2 and 'intel' in err
     code, err = run(capsys, [good, '--reference', 'nobody', '-o', str(tmp_path / 'o.yaml')])
     assert code == 2 and 'nobody' in err

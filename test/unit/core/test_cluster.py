@@ -198,7 +198,7 @@ def test_without_distributed_the_local_pool_merges_with_one_line(pieces, local, 
     assert 'python3-distributed is not installed' in line
 
 
-def test_distributed_is_imported_only_when_a_scheduler_is_given(pieces):
+def test_distributed_is_imported_only_when_a_scheduler_is_given(pieces, house_yaml):
     """Robots and users without a cluster do not need it (a fresh interpreter: this one has it)."""
     script = ('import sys\n'
               'from multi_map_merge.core.config import MergeConfig\n'
@@ -210,8 +210,7 @@ def test_distributed_is_imported_only_when_a_scheduler_is_given(pieces):
               'm.estimate()\n'
               'print(sorted(k for k in sys.modules if k.split(".")[0] in ("dask", "distributed")))\n')
     env = dict(os.environ, PYTHONPATH=SRC + os.pathsep + os.environ.get('PYTHONPATH', ''))
-    yaml = os.path.join(os.path.dirname(SRC), 'test', 'data', 'aws_small_house.yaml')
-    out = subprocess.run([sys.executable, '-c', script, yaml], capture_output=True, text=True, env=env,
+    out = subprocess.run([sys.executable, '-c', script, house_yaml], capture_output=True, text=True, env=env,
                          timeout=120)
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.strip().splitlines()[-1] == '[]'

@@ -2,14 +2,13 @@
 unplaced robot to two placed robots that put it at the same pose are kept; one alone, two that
 disagree, or two to the same robot are not."""
 import math
-import os
 
 import numpy as np
-import yaml
-from conftest import DATA, merged
+import pytest
+from conftest import merged
 
 from multi_map_merge.core import corroborate
-from multi_map_merge.core.transforms import inverse, pose_distance, se2
+from multi_map_merge.core.transforms import inverse, pose_distance, se2, xyyaw
 
 AGREE = corroborate.AGREE
 
@@ -46,27 +45,33 @@ def test_links_between_unplaced_robots_or_of_placed_ones_say_nothing():
     assert corroborate.corroborated(cands, PLACED)[0] == set()
 
 
-REAL = os.path.join(DATA, 'house_gmapping_s2')
-
-
-def merged_real(monkeypatch=None, agree=None):
+def merged_drifting(house_team, monkeypatch=None, agree=None):
     if monkeypatch is not None:
         monkeypatch.setattr(corroborate, 'AGREE', agree)
-    maps = {r: os.path.join(REAL, r + '.yaml') for r in ('tb3_0', 'tb3_1', 'tb3_2', 'tb3_3')}
-    return merged(maps, reference_robot='tb3_0', workers=1)
+    return merged(house_team[0], reference_robot='tb3_0', workers=1)
 
 
-def test_real_gmapping_maps_a_robot_the_gate_refused_is_placed_where_it_started(monkeypatch):
-    """The house, seed 2, four real gmapping maps (make accuracy): tb3_3's links to tb3_0 and
-    tb3_2 have 19 and 12 inliers agreeing 0.952 and 0.957, under the 0.96 the gate asks; alone
-    each is refused (tb3_3 stays unmerged), together they put it within centimetres of where it
-    started."""
-    with open(os.path.join(REAL, 'house.truth.yaml')) as f:
-        starts = {r: se2(*v['start']) for r, v in yaml.safe_load(f)['robots'].items()}
-    m = merged_real(monkeypatch, (-1.0, -1.0))
+@pytest.mark.slow
+def test_drifting_maps_a_robot_the_gate_refused_is_placed_where_it_started(house_team, monkeypatch):
+    """The house, seed 2, four simulated robots' drifting maps (conftest.house_team): tb3_3's links
+    have too little evidence for the gate (11-13 inliers agreeing 0.89-0.95, under the 0.96 it
+    asks; with OpenCV 4.2 its link to tb3_2 is refused as disagreeing instead); alone each is
+    refused (tb3_3 stays unmerged), together they put it within centimetres of where it started,
+    inside its 95% ellipse (x, y, yaw: the maps drift)."""
+    starts = {r: se2(*v) for r, v in house_team[1].items()}
+    m = merged_drifting(house_team, monkeypatch, (-1.0, -1.0))
     assert 'tb3_3' not in m.placements()
-    m = merged_real(monkeypatch, AGREE)
+    # every link of tb3_3 refused, at least two of them by the evidence gate alone
+    refused = {pair: r for pair, r in m.pair_results().items() if 'tb3_3' in pair}
+    assert refused and not any(r.accepted for r in refused.values()), refused
+    gate = [p for p, r in refused.items() if r.reason.startswith('too little evidence')]
+    assert len(gate) >= 2, {p: r.reason for p, r in refused.items()}
+    m = merged_drifting(house_team, monkeypatch, AGREE)
     pl = m.placements()
     assert set(pl) == {'tb3_0', 'tb3_1', 'tb3_2', 'tb3_3'}
-    d, a = pose_distance(pl['tb3_3'].T, inverse(starts['tb3_0']) @ starts['tb3_3'])
-    assert d < 0.1 and math.degrees(a) < 1.0, (d, math.degrees(a))
+    true = inverse(starts['tb3_0']) @ starts['tb3_3']
+    d, a = pose_distance(pl['tb3_3'].T, true)
+    e = np.array(xyyaw(pl['tb3_3'].T)) - np.array(xyyaw(true))
+    e[2] = (e[2] + math.pi) % (2 * math.pi) - math.pi
+    d2 = float(e @ np.linalg.solve(pl['tb3_3'].cov, e))
+    assert d < 0.1 and d2 < 7.81, (d, math.degrees(a), d2)

@@ -1,12 +1,10 @@
 """A SLAM map's drift from its frame's origin in a placement's covariance (core/drift.py)."""
 import math
-import os
 
 import cv2
 import numpy as np
 import pytest
-import yaml
-from conftest import DATA, merged
+from conftest import merged
 
 from multi_map_merge.core import drift
 from multi_map_merge.core.grid import FREE, OCCUPIED
@@ -74,16 +72,12 @@ def test_the_drift_is_what_maps_drawn_with_a_heading_walk_give_a_link():
     assert np.all(np.abs(empirical - model) / scale < 0.08), (empirical, model)
 
 
-REAL = os.path.join(DATA, 'house_gmapping_s2')
-
-
-def test_real_gmapping_maps_placements_are_within_their_ellipse_of_the_true_starts():
-    """The house, seed 2, four real gmapping maps: every placement's error against where the
-    robots really started lies within its 95% ellipse (x, y, yaw) with the maps' drift, and
-    the ellipse of the walls alone misses at least one of them."""
-    with open(os.path.join(REAL, 'house.truth.yaml')) as f:
-        starts = {r: v['start'] for r, v in yaml.safe_load(f)['robots'].items()}
-    maps = {r: os.path.join(REAL, r + '.yaml') for r in ('tb3_0', 'tb3_1', 'tb3_2', 'tb3_3')}
+@pytest.mark.slow
+def test_drifting_maps_placements_are_within_their_ellipse_of_the_true_starts(house_team):
+    """The house, seed 2, four simulated robots' drifting maps (conftest.house_team): every
+    placement's error against where the robots really started lies within its 95% ellipse (x, y,
+    yaw) with the maps' drift, and the ellipse of the walls alone misses at least one of them."""
+    maps, starts = house_team
 
     def d2s(**cfg):
         m = merged(maps, reference_robot='tb3_0', workers=1, **cfg)

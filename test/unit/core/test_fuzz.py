@@ -1,9 +1,8 @@
 """Hundreds of bad and strange inputs into the core: clear errors, no crash, no false merge."""
-import os
 
 import numpy as np
 import pytest
-from conftest import DATA
+from conftest import INTEL_MAP, shared_file
 
 from multi_map_merge.core.grid import Grid, GridError, apply_update, make_grid
 from multi_map_merge.core.mapio import load_map
@@ -64,7 +63,7 @@ def strange_valid_grids(rng, n):
 
 @pytest.mark.slow
 def test_strange_maps_never_crash_or_merge():
-    world = load_map(os.path.join(DATA, 'intel.yaml'))
+    world = load_map(shared_file(INTEL_MAP))
     ps = [cut_piece(world, r, p)[0] for r, p in zip(split_rects(world, 2, 0.3), random_poses(2, 1))]
     m = MapMerger()
     m.update_map('a', ps[0])

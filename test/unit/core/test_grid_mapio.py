@@ -72,11 +72,9 @@ def test_pgm_round_trip_and_orientation(tmp_path):
 
 
 def test_load_real_map_orientation(tmp_path):
-    """The shipped intel map read back equals itself after a save (no double flip)."""
-    import os
-
-    from conftest import DATA
-    g = load_map(os.path.join(DATA, 'intel.yaml'))
+    """The intel map read back equals itself after a save (no double flip)."""
+    from conftest import INTEL_MAP, shared_file
+    g = load_map(shared_file(INTEL_MAP))
     save_map(g, str(tmp_path / 'i.yaml'))
     assert np.array_equal(load_map(str(tmp_path / 'i.yaml')).data, g.data)
     assert (g.data == 100).sum() > 10000 and (g.data == 0).sum() > 100000
@@ -116,10 +114,8 @@ def test_load_map_errors_name_the_file(tmp_path):
 def test_rescale_real_map_never_loses_a_wall():
     """intel at 0.05 m -> 0.1 m -> 0.05 m: every wall cell stays a wall (max-pooling), free
     space stays mostly free, and the origin corner does not move."""
-    import os
-
-    from conftest import DATA
-    g = load_map(os.path.join(DATA, 'intel.yaml'))
+    from conftest import INTEL_MAP, shared_file
+    g = load_map(shared_file(INTEL_MAP))
     coarse = rescale(g, 0.1)
     assert coarse.origin == g.origin and coarse.resolution == 0.1
     assert coarse.data.shape == ((g.height + 1) // 2, (g.width + 1) // 2)

@@ -1,19 +1,15 @@
 """Placement by what all the overlaps say (core/joint.py): every placement refined against every
 placed map it overlaps, bounded, deterministic, and still in the node's placements."""
 import math
-import os
 
 import numpy as np
 import pytest
-from conftest import DATA, merged
+from conftest import INTEL_MAP, MAZE, merged, shared_file
 
 from multi_map_merge.core import joint
 from multi_map_merge.core.composite import lattice_for
 from multi_map_merge.core.mapio import load_map
 from multi_map_merge.core.transforms import apply, inverse, pose_distance, se2
-
-MAZE = os.path.join(DATA, 'tb3_dans_maze')
-BAG = os.path.join(DATA, 'house_gmapping', 'house_gmapping.bag')
 
 
 def robots_of(grids):
@@ -38,17 +34,15 @@ def displaced(house_pair):
 
 @pytest.fixture(scope='module')
 def house_pair():
-    """The last maps of tb3_0 and tb3_1 of the real gmapping bag (a pair that links on its
-    own), their merger, and the truth: tb3_1's map frame in tb3_0's by each map's own best fit
-    to the world."""
-    rosbag = pytest.importorskip('rosbag', reason='rosbag (ROS) reads the shipped gmapping bag')
-    from multi_map_merge.ros.convert import grid_from_msg
-    last = {}
-    with rosbag.Bag(BAG) as bag:
-        for topic, msg, _ in bag.read_messages(topics=['/tb3_0/map', '/tb3_1/map']):
-            last[topic.split('/')[1]] = grid_from_msg(msg, 10 ** 9)
+    """Two real gmapping maps of one half of the Turtlebot3 double house (ROBOTIS's tb3_house in
+    ../shared/data: its robots tb3_0 and tb3_2, here tb3_0 and tb3_1), a pair that links on its
+    own, and their merger. Both maps are in one frame: the link is about identity."""
+    last = {'tb3_0': load_map(shared_file('tb3_house', 'tb3_0_map.yaml')),
+            'tb3_1': load_map(shared_file('tb3_house', 'tb3_2_map.yaml'))}
     m = merged(last, reference_robot='tb3_0')
     assert set(m.placements()) == {'tb3_0', 'tb3_1'}
+    d, a = pose_distance(m.placements()['tb3_1'].T, np.eye(3))
+    assert d < 0.3 and math.degrees(a) < 3.0, (d, math.degrees(a))
     return last, m
 
 
@@ -97,7 +91,7 @@ def test_three_maze_robots_agree_at_least_as_well_and_no_worse_than_the_truth():
     """The three real gmapping maze maps (one of them bent): jointly refined, the maps agree at
     least as well as their links' placements, and no robot ends farther from the truth (the
     robots and the full map share one frame) than 0.15 m and 1.5 degrees."""
-    grids = {'tb3_%d' % n: load_map(os.path.join(MAZE, 'tb3_%d_map.yaml' % n)) for n in range(3)}
+    grids = {'tb3_%d' % n: load_map(shared_file(MAZE, 'tb3_%d_map.yaml' % n)) for n in range(3)}
     m = merged(grids, joint_placement=False)
     anchors = {n: p.T for n, p in m.placements().items()}
     assert set(anchors) == set(grids)
@@ -134,7 +128,7 @@ def test_the_merger_refines_once_and_keeps_its_placements(house_pair):
 
 def test_robots_without_overlap_keep_their_pose():
     """A robot whose walls land on nothing another robot knows is left where it is."""
-    g = load_map(os.path.join(MAZE, 'tb3_0_map.yaml'))
+    g = load_map(shared_file(MAZE, 'tb3_0_map.yaml'))
     robots = robots_of({'a': g, 'b': g})
     far = se2(500.0, 0.0, 0.0)
     out = joint.refine_placements(robots, {'a': np.eye(3), 'b': far}, 'a', lattice_for(g), 2)
@@ -158,7 +152,7 @@ def test_only_the_robots_that_moved_are_refined_the_others_held(house_pair):
 def test_a_robot_is_refined_against_the_maps_it_can_meet_most():
     """neighbours: the robots whose placed known boxes meet its own (grown by NEAR), at most
     ``most``, those it meets most; a map far away is none of them."""
-    g = load_map(os.path.join(MAZE, 'tb3_0_map.yaml'))
+    g = load_map(shared_file(MAZE, 'tb3_0_map.yaml'))
     names = ['a', 'b', 'c', 'd']
     robots = robots_of({n: g for n in names})
     r0, r1, c0, c1 = robots['a'].box
@@ -180,7 +174,7 @@ def test_worker_processes_give_the_poses_refined_here(monkeypatch):
 
     from multi_map_merge.core.workers import PoolRunner
     from multi_map_merge.lab.pieces import pieces_windows
-    world = load_map(os.path.join(DATA, 'intel.yaml'))
+    world = load_map(shared_file(INTEL_MAP))
     team = pieces_windows(world, 6, seed=3)
     grids = {'r%d' % k: g for k, (g, _) in enumerate(team)}
     truth = {'r%d' % k: inverse(team[0][1]) @ T for k, (_, T) in enumerate(team)}

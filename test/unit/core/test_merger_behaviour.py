@@ -1,9 +1,8 @@
 """Behaviours of the merger beyond one estimate: chains, refusals, restarts, persistence."""
-import os
 
 import numpy as np
 import pytest
-from conftest import DATA, merged, pose_error, truth
+from conftest import MAZE, merged, pose_error, shared_file, truth
 
 from multi_map_merge.core.config import MergeConfig
 from multi_map_merge.core.grid import Grid, known_bbox
@@ -66,7 +65,7 @@ def test_disjoint_pieces_are_never_merged(intel, house):
     r0, r1, c0, c1 = known_bbox(intel.levels())
     cm, rm = (c0 + c1) // 2, (r0 + r1) // 2
     quads = [(r0, rm - 5, c0, cm - 5), (r0, rm - 5, cm + 5, c1), (rm + 5, r1, c0, cm - 5), (rm + 5, r1, cm + 5, c1)]
-    maze = load_map(os.path.join(DATA, 'tb3_dans_maze', 'tb3_1_map.yaml'))
+    maze = load_map(shared_file(MAZE, 'tb3_1_map.yaml'))
     false_merges = []
     for i, q in enumerate(quads):
         a = cut_piece(intel, q, (0, 0, 0))[0]

@@ -6,15 +6,13 @@ import os
 
 import numpy as np
 import pytest
-from conftest import DATA, merged, pose_error, truth
+from conftest import MAZE, merged, pose_error, shared_file, truth
 
 from multi_map_merge.core import verify
 from multi_map_merge.core.grid import FREE, OCCUPIED
 from multi_map_merge.core.mapio import load_map
 from multi_map_merge.core.merger import MapMerger
 from multi_map_merge.core.transforms import pose_to_image, xyyaw
-
-MAZE = os.path.join(DATA, 'tb3_dans_maze')
 
 
 def merge(paths, names=None):
@@ -43,7 +41,7 @@ def cell_agreement(m, grids, a, b):
 
 
 def test_dans_maze_three_robots_match_the_full_map():
-    paths = [os.path.join(MAZE, 'tb3_%d_map.yaml' % n) for n in range(3)]
+    paths = [shared_file(MAZE, 'tb3_%d_map.yaml' % n) for n in range(3)]
     m, _ = merge(paths, ['tb3_0', 'tb3_1', 'tb3_2'])
     P = m.placements()
     assert set(P) == {'tb3_0', 'tb3_1', 'tb3_2'}, {n: s.last_attempt for n, s in m.status().items()}
@@ -53,7 +51,7 @@ def test_dans_maze_three_robots_match_the_full_map():
         x, y, yaw = xyyaw(P[n].T)
         assert math.hypot(x, y) < 0.25 and abs(math.degrees(yaw)) < 2.0, (n, x, y, yaw)
     merged = m.compose()
-    full = load_map(os.path.join(MAZE, 'dans_maze_map.yaml'))
+    full = load_map(shared_file(MAZE, 'dans_maze_map.yaml'))
     m2 = MapMerger()
     m2.update_map('full', full)
     m2.update_map('merged', merged)
@@ -152,9 +150,9 @@ def test_dans_maze_each_robot_map_belongs_where_the_full_map_says():
     fits it there almost perfectly; tb3_1 drifted (visibly bent: at identity only ~75% of its
     walls agree) but is still found near identity by the merger; no robot is ever misplaced.
     Its placement in the merge, carried into the full map's frame, lands near identity too."""
-    full = load_map(os.path.join(MAZE, 'dans_maze_map.yaml'))
+    full = load_map(shared_file(MAZE, 'dans_maze_map.yaml'))
     lf = full.levels()
-    robots = {n: load_map(os.path.join(MAZE, 'tb3_%d_map.yaml' % n)) for n in range(3)}
+    robots = {n: load_map(shared_file(MAZE, 'tb3_%d_map.yaml' % n)) for n in range(3)}
     at_identity = {}
     for n, g in robots.items():
         A = pose_to_image(np.eye(3), full.resolution, full.origin, g.resolution, g.origin)

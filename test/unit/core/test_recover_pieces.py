@@ -6,7 +6,7 @@ import sys
 import numpy as np
 import pytest
 import yaml
-from conftest import DATA, REPO, pose_error, truth
+from conftest import HOUSE_MAP, INTEL_MAP, REPO, pose_error, shared_file, truth
 
 from multi_map_merge.cli import merge_maps as cli
 from multi_map_merge.core.mapio import load_map, save_map
@@ -14,11 +14,12 @@ from multi_map_merge.core.merger import MapMerger
 from multi_map_merge.core.transforms import se2
 from multi_map_merge.lab.pieces import cut_piece, random_poses, split_rects
 
-CASES = [(world, n, seed) for world in ('intel', 'aws_small_house') for n in (2, 3, 4) for seed in (0, 1, 2, 3)]
+WORLDS = {'intel': INTEL_MAP, 'house': HOUSE_MAP}   # in ../shared/data
+CASES = [(world, n, seed) for world in WORLDS for n in (2, 3, 4) for seed in (0, 1, 2, 3)]
 
 
 def pieces(world, n, seed):
-    w = load_map(os.path.join(DATA, world + '.yaml'))
+    w = load_map(shared_file(WORLDS[world]))
     return w, [cut_piece(w, r, p, 'p%d' % i)
                for i, (r, p) in enumerate(zip(rects(w, n), random_poses(n, seed, 5.0)))]
 
@@ -89,7 +90,7 @@ def write_pieces(tmp_path, ps):
     return paths
 
 
-@pytest.mark.parametrize('world, n', [('intel', 4), ('aws_small_house', 3)])
+@pytest.mark.parametrize('world, n', [('intel', 4), ('house', 3)])
 def test_merge_maps_cli(tmp_path, world, n):
     w, ps = pieces(world, n, 2)
     paths = write_pieces(tmp_path, ps)
@@ -153,7 +154,7 @@ def test_merge_maps_script_subprocess(tmp_path):
 
 
 def test_core_merged_map_is_the_world():
-    w, ps = pieces('aws_small_house', 4, 3)
+    w, ps = pieces('house', 4, 3)
     m = MapMerger()
     for i, (g, _) in enumerate(ps):
         m.update_map('p%d' % i, g)
@@ -166,7 +167,7 @@ def test_merge_maps_cli_reports_a_map_it_cannot_place(tmp_path):
     """A map of another building is listed with merged: false and a reason, exit status 0."""
     _, ps = pieces('intel', 2, 1)
     paths = write_pieces(tmp_path, ps)
-    other = load_map(os.path.join(DATA, 'aws_small_house.yaml'))
+    other = load_map(shared_file(HOUSE_MAP))
     save_map(other, str(tmp_path / 'house.yaml'))
     tf = str(tmp_path / 'T.yaml')
     assert cli.main(paths + [str(tmp_path / 'house.yaml'), '-o', str(tmp_path / 'm.yaml'),

@@ -2,7 +2,7 @@ import math
 
 import numpy as np
 import pytest
-from conftest import DATA
+from conftest import INTEL_MAP, shared_file
 
 from multi_map_merge.core.mapio import load_map
 from multi_map_merge.core.transforms import (
@@ -49,7 +49,7 @@ def test_hand_made_shift_gives_pose():
 
 
 def test_cut_piece_pose_matches_image_transform():
-    w = load_map(DATA + '/intel.yaml')
+    w = load_map(shared_file(INTEL_MAP))
     g, T = cut_piece(w, (200, 400, 300, 500), (2.0, -3.0, 2.0))
     A = pose_to_image(T, w.resolution, w.origin, g.resolution, g.origin)   # cells of g -> cells of w
     rr, cc = np.nonzero(g.data == 100)

@@ -9,7 +9,7 @@ import sys
 import numpy as np
 import pytest
 import yaml
-from conftest import DATA, REPO, pose_error
+from conftest import REPO, pose_error
 from scipy.spatial import cKDTree
 
 from multi_map_merge.core.grid import FREE, OCCUPIED, Grid, GridError
@@ -25,8 +25,6 @@ from multi_map_merge.lab.evaluate import (
 )
 from multi_map_merge.lab.pieces import cut_piece, random_poses
 
-HOUSE = os.path.join(DATA, 'aws_small_house.yaml')
-INTEL = os.path.join(DATA, 'intel.yaml')
 OFF = se2(0.15, 0.10, math.radians(3.0))   # a coarse pose this far off (in the truth's frame)
 
 
@@ -227,7 +225,7 @@ def run_cli(*args):
                           capture_output=True, text=True, env=env, timeout=120)
 
 
-def test_without_open3d_scoring_says_what_to_install(house, monkeypatch, tmp_path):
+def test_without_open3d_scoring_says_what_to_install(house, monkeypatch, tmp_path, house_yaml):
     """Open3D is optional (Ubuntu 20.04 does not package it): without it scoring raises an
     ImportError naming what to install, and evaluate_map exits 2 with that one line."""
     monkeypatch.setitem(sys.modules, 'open3d', None)          # `import open3d` fails, as where absent
@@ -237,7 +235,7 @@ def test_without_open3d_scoring_says_what_to_install(house, monkeypatch, tmp_pat
     code = ("import sys; sys.modules['open3d'] = None; from multi_map_merge.lab.evaluate import main; "
             "sys.exit(main(sys.argv[1:]))")
     env = dict(os.environ, PYTHONPATH=os.path.join(REPO, 'src'))
-    r = subprocess.run([sys.executable, '-c', code, HOUSE, HOUSE, '--json', str(tmp_path / 'o.json')],
+    r = subprocess.run([sys.executable, '-c', code, house_yaml, house_yaml, '--json', str(tmp_path / 'o.json')],
                        capture_output=True, text=True, env=env, timeout=120)
     lines = r.stderr.strip().splitlines()
     assert r.returncode == 2 and len(lines) == 1, (r.returncode, r.stderr)
@@ -245,23 +243,23 @@ def test_without_open3d_scoring_says_what_to_install(house, monkeypatch, tmp_pat
     assert not (tmp_path / 'o.json').exists() and r.stdout == ''
 
 
-def test_cli_exits_2_naming_a_bad_file(tmp_path):
-    r = run_cli(str(tmp_path / 'missing.yaml'), HOUSE)
+def test_cli_exits_2_naming_a_bad_file(tmp_path, house_yaml):
+    r = run_cli(str(tmp_path / 'missing.yaml'), house_yaml)
     assert r.returncode == 2 and 'missing.yaml' in r.stderr
     (tmp_path / 'notamap.yaml').write_text('hello: 1\n')
-    r = run_cli(HOUSE, str(tmp_path / 'notamap.yaml'))
+    r = run_cli(house_yaml, str(tmp_path / 'notamap.yaml'))
     assert r.returncode == 2 and 'notamap.yaml' in r.stderr
-    r = run_cli(HOUSE, HOUSE, '--truth', str(tmp_path / 'missing.truth.yaml'))
+    r = run_cli(house_yaml, house_yaml, '--truth', str(tmp_path / 'missing.truth.yaml'))
     assert r.returncode == 2 and 'missing.truth.yaml' in r.stderr
 
 
-def test_cli_prints_the_figures_on_a_real_pair(tmp_path, house, open3d):
+def test_cli_prints_the_figures_on_a_real_pair(tmp_path, house, open3d, house_yaml):
     # a "merged map" in tb3_0's map frame; the truth file gives tb3_0's start in the world
     start0, start1 = (2.0, -1.0, 0.4), (2.3, -0.8, 1.9)
     T = se2(*start0)
     save_map(in_frame(house, T, 'merged'), str(tmp_path / 'merged.yaml'))
     (tmp_path / 'run.truth.yaml').write_text(yaml.safe_dump({
-        'world': os.path.relpath(HOUSE, str(tmp_path)), 'reference': 'tb3_0',
+        'world': os.path.relpath(house_yaml, str(tmp_path)), 'reference': 'tb3_0',
         'robots': {'tb3_0': {'start': list(start0)}, 'tb3_1': {'start': list(start1)},
                    'tb3_2': {'start': [0.0, 0.0, 0.0]}}}))
     t1 = np.linalg.inv(se2(*start0)) @ se2(*start1) @ se2(0.02, 0.0, math.radians(0.5))
@@ -269,7 +267,7 @@ def test_cli_prints_the_figures_on_a_real_pair(tmp_path, house, open3d):
     (tmp_path / 'T.yaml').write_text(yaml.safe_dump({'reference': 'tb3_0', 'maps': {
         'tb3_1': {'merged': True, 'x': x, 'y': y, 'yaw': yaw},
         'tb3_2': {'merged': False, 'reason': 'too few inliers'}}}))
-    r = run_cli(str(tmp_path / 'merged.yaml'), HOUSE, '--truth', str(tmp_path / 'run.truth.yaml'),
+    r = run_cli(str(tmp_path / 'merged.yaml'), house_yaml, '--truth', str(tmp_path / 'run.truth.yaml'),
                 '--transforms', str(tmp_path / 'T.yaml'), '--json', str(tmp_path / 'o.json'))
     assert r.returncode == 0, r.stderr
     out = json.loads((tmp_path / 'o.json').read_text())

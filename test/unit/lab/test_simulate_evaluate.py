@@ -5,7 +5,7 @@ import os
 
 import numpy as np
 import pytest
-from conftest import DATA, pose_error
+from conftest import pose_error
 
 from multi_map_merge.core.grid import FREE, OCCUPIED, Grid
 from multi_map_merge.core.posegraph import optimise, worst_residual
@@ -13,12 +13,10 @@ from multi_map_merge.core.transforms import relative, se2, wrap_angle
 from multi_map_merge.lab import simulate as sim
 from multi_map_merge.lab.evaluate import score_map, transform_errors
 
-HOUSE = os.path.join(DATA, 'aws_small_house.yaml')
-
 
 @pytest.fixture(scope='module')
 def team(house):
-    """Four robots and a lone one in the shipped AWS house (about 10 s)."""
+    """Four robots and a lone one in the AWS house (about 10 s)."""
     return sim.simulate_world(house, sim.SimConfig(robots=4, seed=1))
 
 
@@ -210,18 +208,18 @@ def test_carmen_reader(tmp_path):
         sim.read_carmen(str(tmp_path / 'y.log'))
 
 
-def test_evaluate_map_cli(tmp_path, open3d):
+def test_evaluate_map_cli(tmp_path, open3d, house_yaml):
     import subprocess
     import sys
 
     from conftest import REPO
     env = dict(os.environ, PYTHONPATH=os.path.join(REPO, 'src'))
     exe = [sys.executable, os.path.join(REPO, 'scripts', 'evaluate_map')]
-    r = subprocess.run(exe + [HOUSE, HOUSE, '--init', '0.05', '0', '0.01', '--json', str(tmp_path / 'o.json')],
-                       capture_output=True, text=True, env=env)
+    r = subprocess.run(exe + [house_yaml, house_yaml, '--init', '0.05', '0', '0.01', '--json',
+                              str(tmp_path / 'o.json')], capture_output=True, text=True, env=env)
     assert r.returncode == 0, r.stderr
     import json
     out = json.load(open(tmp_path / 'o.json'))
     assert out['fitness'] > 0.99 and abs(out['pose'][0]) < 0.02 and 'Fitness' in r.stdout
-    r = subprocess.run(exe + [str(tmp_path / 'missing.yaml'), HOUSE], capture_output=True, text=True, env=env)
+    r = subprocess.run(exe + [str(tmp_path / 'missing.yaml'), house_yaml], capture_output=True, text=True, env=env)
     assert r.returncode == 2 and 'missing.yaml' in r.stderr

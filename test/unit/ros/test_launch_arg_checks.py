@@ -17,12 +17,11 @@ import pytest
 
 pytest.importorskip('roslaunch')
 import rospkg  # noqa: E402
-from conftest import REPO  # noqa: E402
+from conftest import BURGER_XACRO, REPO, SHARED, shared_file  # noqa: E402
 
 LAUNCH = os.path.join(REPO, 'launch')
 ANSI = re.compile(r'\x1b\[[0-9;]*m')
-BURGER = os.path.join(REPO, 'test', 'data', 'turtlebot3', 'turtlebot3_description', 'urdf',
-                      'turtlebot3_burger.urdf.xacro')
+BURGER = os.path.join(SHARED, BURGER_XACRO)   # ROBOTIS's, in ../shared/data: skipped where absent
 
 
 @pytest.fixture(scope='module', autouse=True)
@@ -87,6 +86,8 @@ BAD = [
 
 @pytest.mark.parametrize('args,message', BAD, ids=[' '.join(a[0:1] + a[-1:]) for a, _ in BAD])
 def test_a_wrong_value_stops_roslaunch_naming_it(args, message):
+    if 'urdf_file:=' + BURGER in args:
+        shared_file(BURGER_XACRO)
     rc, out, err = roslaunch(*args)
     assert rc == 1, (rc, out, err)
     assert 'Value error: ' + message in err, err
@@ -109,6 +110,8 @@ GOOD = [
 
 @pytest.mark.parametrize('args,expected', GOOD, ids=[' '.join(a[0:1] + a[-2:]) for a, _ in GOOD])
 def test_right_values_pass_the_checks(args, expected):
+    if 'urdf_file:=' + BURGER in args:
+        shared_file(BURGER_XACRO)
     rc, out, err = roslaunch(*args)
     assert rc == 0, (rc, out, err)
     assert sorted(out.split()) == sorted(expected), out

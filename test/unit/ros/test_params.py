@@ -7,7 +7,7 @@ from dataclasses import fields
 
 import pytest
 import yaml
-from conftest import REPO
+from conftest import BURGER_XACRO, REPO, shared_file
 
 from multi_map_merge.core import parameters as P
 from multi_map_merge.core.config import MergeConfig
@@ -183,8 +183,7 @@ def test_no_launch_file_sets_a_parameter_the_merger_warns_about():
     from roslaunch.xmlloader import XmlLoader
     checked = 0
     # xacro is not in Debian: the real-robot launch reads ROBOTIS's URDF as a file instead
-    burger = os.path.join(REPO, 'test', 'data', 'turtlebot3', 'turtlebot3_description', 'urdf',
-                          'turtlebot3_burger.urdf.xacro')
+    burger = shared_file(BURGER_XACRO)
     argv = {'turtlebot3_multi_slam.launch': ['urdf_file:=' + burger],
             'team_bags_gmapping.launch': ['bag_0:=/tmp/x.bag']}   # clock_bag 0 needs a bag_0
     for path in sorted(glob.glob(os.path.join(REPO, 'launch', '*.launch'))):
@@ -226,14 +225,14 @@ def test_the_readme_has_the_robotis_gazebo_troubleshooting_entry():
 
 
 def test_robotis_mexplore_block_resolves_with_only_the_confidence_warning():
-    """The parameters turtlebot3_gazebo's multi_map_merge.launch (ROBOTIS, noetic; shipped in
-    test/data/turtlebot3_simulations) gives m-explore's node, given to ours unchanged (only pkg
+    """The parameters turtlebot3_gazebo's multi_map_merge.launch (ROBOTIS, noetic; read in
+    ../shared/data/robotis/turtlebot3_simulations) gives m-explore's node, given to ours unchanged (only pkg
     and type changed)."""
     robotis = {'robot_map_topic': 'map', 'robot_namespace': 'tb3', 'merged_map_topic': 'map',
                'world_frame': 'map', 'known_init_poses': True, 'merging_rate': 0.5,
                'discovery_rate': 0.05, 'estimation_rate': 0.1, 'estimation_confidence': 1.0}
     import xml.etree.ElementTree as ET
-    root = ET.parse(os.path.join(REPO, 'test', 'data', 'turtlebot3_simulations', 'multi_map_merge.launch.xml'))
+    root = ET.parse(shared_file('robotis', 'turtlebot3_simulations', 'multi_map_merge.launch'))
     (node,) = [n for n in root.iter('node') if n.get('name') == 'map_merge']
     assert {p.get('name'): yaml.safe_load(p.get('value')) for p in node.iter('param')} == robotis
     res = resolve_params(robotis)

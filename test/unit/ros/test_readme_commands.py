@@ -11,12 +11,11 @@ import subprocess
 
 import pytest
 import yaml
-from conftest import DATA, REPO
+from conftest import MAZE, REPO, shared_file
 
 README = os.path.join(REPO, 'README.md')
 # the README's pages in docs/ (real robots, bag replay, offline tools, ...): their commands too
 DOCS = sorted(glob.glob(os.path.join(REPO, 'docs', '*.md')))
-MAZE = os.path.join(DATA, 'tb3_dans_maze')
 
 
 def _readme_commands(tool, pages=(README,) + tuple(DOCS)):
@@ -61,8 +60,9 @@ def test_every_roslaunch_file_of_the_readme_loads(name):
 def test_readme_merge_then_evaluate(tmp_path):
     """`rosrun multi_map_merge merge_maps` on three real Turtlebot3 gmapping maps, then
     `rosrun multi_map_merge evaluate_map` of the result against the maze's full map."""
-    for name in os.listdir(MAZE):
-        shutil.copy(os.path.join(MAZE, name), tmp_path / name)
+    maze = shared_file(MAZE)
+    for name in os.listdir(maze):
+        shutil.copy(os.path.join(maze, name), tmp_path / name)
     maps = ['tb3_0_map.yaml', 'tb3_1_map.yaml', 'tb3_2_map.yaml']
     r = _run(['rosrun', 'multi_map_merge', 'merge_maps'] + maps
              + ['-o', 'merged.yaml', '--transforms', 'T.yaml'], cwd=tmp_path, timeout=300)

@@ -1,8 +1,8 @@
 """The frames and topics our real-robot launch gives each robot's gmapping are exactly those
 ROBOTIS's own Noetic nodes publish for that robot.
 
-ROBOTIS's launch files and the burger's URDF (test/data/turtlebot3: noetic branch of
-ROBOTIS-GIT/turtlebot3, unchanged, Apache-2.0) are resolved with roslaunch's own XML loader
+ROBOTIS's launch files and the burger's URDF (noetic branch of ROBOTIS-GIT/turtlebot3, Apache-2.0,
+read in place from ../shared/data/robotis/turtlebot3; skipped where absent) are resolved with roslaunch's own XML loader
 the way the README tells users to run them (``ROS_NAMESPACE=tb3_0 roslaunch turtlebot3_bringup
 turtlebot3_robot.launch multi_robot_name:=tb3_0 set_lidar_frame_id:=tb3_0/base_scan``, and
 ``turtlebot3_remote.launch multi_robot_name:=tb3_0``). What each of their nodes then publishes
@@ -28,12 +28,13 @@ import pytest
 
 roslaunch = pytest.importorskip('roslaunch')
 import rospkg  # noqa: E402
-from conftest import REPO  # noqa: E402
+from conftest import REPO, SHARED, shared_file  # noqa: E402
+from conftest import ROBOTIS as ROBOTIS_IN_SHARED  # noqa: E402
 from roslaunch import substitution_args  # noqa: E402
 from roslaunch.config import ROSLaunchConfig  # noqa: E402
 from roslaunch.xmlloader import XmlLoader  # noqa: E402
 
-ROBOTIS = os.path.join(REPO, 'test', 'data', 'turtlebot3')
+ROBOTIS = os.path.join(SHARED, ROBOTIS_IN_SHARED)
 BRINGUP = os.path.join(ROBOTIS, 'turtlebot3_bringup', 'launch')
 BURGER = os.path.join(ROBOTIS, 'turtlebot3_description', 'urdf', 'turtlebot3_burger.urdf.xacro')
 OURS = os.path.join(REPO, 'launch', 'turtlebot3_multi_slam.launch')
@@ -41,7 +42,9 @@ OURS = os.path.join(REPO, 'launch', 'turtlebot3_multi_slam.launch')
 
 @pytest.fixture
 def robotis_env(monkeypatch):
-    """ROBOTIS's packages found (their shipped copies first), the README's environment."""
+    """ROBOTIS's packages found (their copies in ../shared/data first: skipped where absent), the
+    README's environment."""
+    shared_file(ROBOTIS_IN_SHARED)
     monkeypatch.setenv('ROS_PACKAGE_PATH', ROBOTIS + os.pathsep + os.environ.get('ROS_PACKAGE_PATH', ''))
     monkeypatch.setenv('TURTLEBOT3_MODEL', 'burger')
     monkeypatch.setenv('LDS_MODEL', 'LDS-02')
