@@ -24,19 +24,14 @@ APT_PKGS := python3-rospy python3-tf2-ros python3-nav-msgs python3-rostest pytho
 # ~dask_scheduler's Dask cluster, optional for users, tested with a real scheduler and workers
 # in test/unit/core/test_cluster.py; libmrpt-slam-dev, libmrpt-ros1bridge-dev and the roscpp, tf2_ros,
 # message and rosbag_storage headers: the rbpf_slam nodes, each robot's SLAM in the demo and tests)
-# gmapping (the real slam_gmapping node): the system's when ROS finds one (Ubuntu + Noetic:
-# ros-noetic-gmapping through rosdep), else built from ../shared/gmapping (unmodified upstream
-# source) into GMAPPING_WS and overlaid on the workspace, else none (`make gmapping` says so).
-GMAPPING_SRC := $(abspath $(CURDIR)/../shared/gmapping)
-GMAPPING_WS  ?= $(WS)/gmapping_ws
 # Tests, demo and bench start private masters on this machine only: every process names itself
 # by the loopback address, so nothing depends on the machine's hostname resolving.
 # ROS_PORT: the port of a master that commands here start (two clones on one machine: two ports).
 ROS_PORT ?= 11311
-ROS_ENV := source $(SETUP) && { [ ! -f $(GMAPPING_WS)/devel/setup.bash ] || source $(GMAPPING_WS)/devel/setup.bash --extend; } && export ROS_HOME=$(WS)/ros_home ROS_LOG_DIR=$(WS)/ros_home/log \
+ROS_ENV := source $(SETUP) && export ROS_HOME=$(WS)/ros_home ROS_LOG_DIR=$(WS)/ros_home/log \
   ROS_IP=127.0.0.1 ROS_MASTER_URI=http://127.0.0.1:$(ROS_PORT) && unset ROS_HOSTNAME
 
-.PHONY: deps build gmapping test unit demo bench accuracy bend-sweep clean setup-path test-focal lint
+.PHONY: deps build test unit demo bench accuracy bend-sweep clean setup-path test-focal lint
 
 # $(call apt_install,PACKAGES): apt-get installs those of PACKAGES dpkg does not list as installed
 define apt_install
@@ -62,18 +57,11 @@ build: deps
 	  || { tail -40 $(WS)/build.log; exit 1; }
 	@echo "built: $(WS)"
 
-gmapping: build
-	@$(ROS_ENV) && if p=$$(rospack find gmapping 2>/dev/null); then echo "gmapping: $$p"; \
-	elif [ -x $(GMAPPING_SRC)/build.sh ]; then echo "gmapping: not installed: building it from $(GMAPPING_SRC) ..."; \
-	  GMAPPING_WS=$(GMAPPING_WS) $(GMAPPING_SRC)/build.sh >$(WS)/gmapping_build.log 2>&1 \
-	    || { tail -20 $(WS)/gmapping_build.log; exit 1; }; tail -1 $(WS)/gmapping_build.log; \
-	else echo "gmapping: none (no ROS package gmapping, no ../shared/gmapping): the demo replays maps real gmapping made earlier, the gmapping tests skip"; fi
-
 unit: build
 	@$(ROS_ENV) && cd $(CURDIR) && python3 -m pytest -q test/unit
 
 # rostest exits 0 even when a test fails (seen with Debian's ros_comm 1.15): judge by RESULT.
-test: build gmapping
+test: build
 	@$(ROS_ENV) && cd $(CURDIR) && rc=0; \
 	python3 -m pytest -q test/unit || rc=1; \
 	for t in test/ros/*.test; do \
@@ -86,7 +74,7 @@ test: build gmapping
 # DEMO_ARGS: run_demo's options, e.g. DEMO_ARGS=--lds02-driver (scans as ROBOTIS's LDS-02 driver
 # sends them, through each robot's scan_frame_relay); the DEMO_* environment settings pass as they are
 DEMO_ARGS ?=
-demo: build gmapping
+demo: build
 	@$(ROS_ENV) && cd $(CURDIR) && scripts/run_demo $(DEMO_ARGS)
 
 clean:
@@ -110,7 +98,7 @@ bench: build
 # ACCURACY_ARGS=--quick: 1 seed, the home only (accuracy_quick.*); --worlds home,house,intel adds the
 # AWS small house of ../shared/data; see bench/README.md.
 ACCURACY_ARGS ?=
-accuracy: build gmapping
+accuracy: build
 	@$(ROS_ENV) && cd $(CURDIR) && python3 bench/accuracy.py $(ACCURACY_ARGS)
 
 # Placement covariances against the real error on REAL gmapping maps of REAL CARMEN logs (not
@@ -119,7 +107,7 @@ accuracy: build gmapping
 # a rerun only merges. BEND_SWEEP_ARGS, e.g. BEND_SWEEP_ARGS="--merge-only --config max_position_sigma=0.2 --stem x";
 # see bench/README.md.
 BEND_SWEEP_ARGS ?=
-bend-sweep: build gmapping
+bend-sweep: build
 	@$(ROS_ENV) && cd $(CURDIR) && python3 bench/bend_sweep.py $(BEND_SWEEP_ARGS)
 
 # The workspace's setup.bash, for the README's `rosrun multi_map_merge ...` commands in a shell:
