@@ -43,7 +43,9 @@ ROBOT_CODE = ['scripts/scan_frame_relay', 'scripts/tf_relay', 'scripts/frame_pre
               'src/multi_map_merge/ros/env_loader.py']
 # the keys a robot needs, all of them (issue 32: 39 keys before, rviz, OpenCV, scipy, xvfb among them)
 ROBOT_KEYS = {'catkin', 'python3-setuptools', 'rospy', 'sensor_msgs', 'nav_msgs', 'tf2_msgs', 'rosbag',
-              'roslaunch', 'gmapping', 'robot_state_publisher', 'rostest'}
+              'roslaunch', 'gmapping', 'robot_state_publisher', 'rostest',
+              # rbpf_slam, the SLAM of our own a robot may run (slam:=rbpf), built from C++
+              'roscpp', 'message_filters', 'tf2', 'tf2_ros', 'rosbag_storage', 'mrpt2'}
 
 
 def condition_holds(cond, env):
@@ -259,9 +261,12 @@ def test_a_robot_needs_only_the_keys_of_what_it_runs():
     for heavy in ('rviz', 'python3-opencv', 'python3-numpy', 'python3-scipy', 'xvfb', 'python_qt_binding',
                   'xacro', 'turtlebot3_description', 'python3-pytest'):
         assert heavy in all_keys(base) and heavy not in all_keys(robot), heavy
-    # building the package on a robot: catkin_make needs its buildtool, build and (CMakeLists.txt's
-    # find_package(rostest) under CATKIN_ENABLE_TESTING) rostest
-    assert robot['buildtool_depend'] == {'catkin'} and robot['build_depend'] == {'python3-setuptools'}
+    # building the package on a robot: catkin_make needs its buildtool, build (rbpf_slam's C++:
+    # roscpp, tf2, MRPT 2, the messages) and (CMakeLists.txt's find_package(rostest) under
+    # CATKIN_ENABLE_TESTING) rostest
+    assert robot['buildtool_depend'] == {'catkin'}
+    assert robot['build_depend'] == {'python3-setuptools', 'roscpp', 'message_filters', 'tf2', 'tf2_ros',
+                                     'rosbag_storage', 'mrpt2', 'sensor_msgs', 'nav_msgs', 'tf2_msgs'}
     assert robot['test_depend'] == {'rostest'}
 
 
