@@ -37,7 +37,10 @@ RbpfMapper::RbpfMapper(const Options& o) : options_(o)
 	auto& icp = c.predictionOptions.icp_params;
 	icp.ICP_algorithm = mrpt::slam::icpClassic;
 	icp.maxIterations = 40;
-	icp.thresholdDist = 0.75;
+	// each scan point looks for grid walls this far from it at first: the cost of a match grows
+	// with its square, and a particle's guess (its last pose plus the odometry since) is within
+	// a few centimetres of where the scan fits
+	icp.thresholdDist = o.matchSearchRadius;
 	icp.thresholdAng = 0.15 * M_PI / 180.0;
 	icp.ALFA = 0.5;
 	icp.smallestThresholdDist = std::max(o.delta, 0.05);

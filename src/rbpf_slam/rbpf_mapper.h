@@ -34,6 +34,7 @@ struct Options
 	// a particle's scan match below this goodness (share of the scan's points matched, 0..1)
 	// is not trusted: the odometry places it instead
 	double matchMinGoodness = 0.7;
+	double matchSearchRadius = 0.3;	 //!< m: how far a scan point first looks for a wall of the grid
 	int seed = 0;  //!< the filter's random seed; 0: from the clock
 };
 

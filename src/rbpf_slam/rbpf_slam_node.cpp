@@ -91,6 +91,7 @@ class RbpfSlamNode
 		o.stt = paramDouble(pnh_, "stt", 0.2, false);
 		o.sigma = paramDouble(pnh_, "sigma", 0.05, true);
 		o.matchMinGoodness = paramDouble(pnh_, "match_min_goodness", 0.7, false);
+		o.matchSearchRadius = paramDouble(pnh_, "match_search_radius", 0.3, true);
 		o.seed = pnh_.param<int>("seed", 0);
 		maxRange_ = o.maxRange;
 		mapUpdateInterval_ = paramDouble(pnh_, "map_update_interval", 5.0, false);

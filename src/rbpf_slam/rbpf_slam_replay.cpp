@@ -102,6 +102,7 @@ int main(int argc, char** argv)
 	o.stt = paramDouble(pnh, "stt", 0.2, false);
 	o.sigma = paramDouble(pnh, "sigma", 0.05, true);
 	o.matchMinGoodness = paramDouble(pnh, "match_min_goodness", 0.7, false);
+	o.matchSearchRadius = paramDouble(pnh, "match_search_radius", 0.3, true);
 	o.seed = seed != 0 ? seed : pnh.param<int>("seed", 0);
 
 	rosbag::Bag bag;
