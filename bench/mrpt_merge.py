@@ -24,6 +24,7 @@ import hashlib
 import json
 import math
 import os
+import resource
 import subprocess
 import sys
 import tempfile
@@ -40,6 +41,7 @@ LIBS = ['slam', 'maps', 'vision', 'obs', 'poses', 'math', 'random', 'system', 'r
         'serialization', 'core']
 ENV = dict(os.environ, PATH='/usr/bin:/bin:' + os.environ.get('PATH', ''))
 sys.path.insert(0, os.path.join(os.path.dirname(HERE), 'src'))
+DRIVER: dict = {}   # the last driver run's wall_s, cpu_s, rss_mb (align_all)
 
 
 def available():
@@ -112,9 +114,16 @@ def align_all(grids, seed=1, icp=True, work=None):
         cv2.imwrite(p, trinary_image(g))
         imgs.append(p)
     cmd = [binary(), '--seed', str(seed)] + ([] if icp else ['--no-icp']) + [repr(grids[0].resolution)] + imgs
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.time()
     r = subprocess.run(cmd, capture_output=True, text=True, env=ENV, cwd=work)
     if r.returncode != 0:
         raise RuntimeError('mrpt_grid_align failed (exit %d): %s' % (r.returncode, r.stderr[-800:]))
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    # the driver's own figures: this process's children are the driver alone (and any earlier
+    # driver or compiler, whose peak RSS would then be counted: ru_maxrss is of the largest child)
+    DRIVER.update({'wall_s': time.time() - t0, 'rss_mb': after.ru_maxrss / 1024.0,
+                   'cpu_s': (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime)})
     out = []
     for line in r.stdout.splitlines():
         if not line.startswith('{'):
@@ -182,7 +191,7 @@ def merge(paths, reference=None, seed=1, icp=True):
     for k in tree:
         pose_of(k)
     rep = {'reference': stems[ref], 'merger': 'MRPT CGridMapAligner (bench/mrpt_merge.py)', 'seed': seed,
-           'seconds': round(time.time() - t0, 3), 'maps': maps,
+           'seconds': round(time.time() - t0, 3), 'driver': dict(DRIVER), 'maps': maps,
            'pairs': [{'a': stems[p['i']], 'b': stems[p['j']], 'kept': p['kept'], 'modes': p['modes'],
                       'quality': p.get('quality'), 'seconds': p['seconds'],
                       'pose': list(xyyaw(p['T'])) if p['kept'] else None} for p in pairs]}

@@ -1,0 +1,63 @@
+"""bench/peer.py: m-explore is measured only where its node is installed; where it is not, every
+figure says so, never a number. The measuring path (master, feeder, node, /map) is run with a
+stand-in for m-explore's node (a small rospy node that merges nothing: it republishes robot 0's
+map on /map after two robots' maps came), since m-explore itself is not installed here."""
+import os
+import stat
+import subprocess
+import sys
+
+import pytest
+
+REPO = os.path.abspath(os.path.join(os.path.dirname(__file__), '..', '..', '..'))
+sys.path.insert(0, os.path.join(REPO, 'bench'))
+
+import peer  # noqa: E402
+
+STAND_IN = '''#!/usr/bin/python3
+import rospy
+from nav_msgs.msg import OccupancyGrid
+rospy.init_node('map_merge')
+assert rospy.get_param('~known_init_poses') is False
+got = {}
+pub = rospy.Publisher('/map', OccupancyGrid, queue_size=1, latch=True)
+def on(k):
+    def cb(m):
+        got[k] = m
+        if len(got) >= 2:
+            pub.publish(got[0] if 0 in got else m)
+    return cb
+subs = [rospy.Subscriber('/robot_%d/map' % k, OccupancyGrid, on(k)) for k in range(2)]
+rospy.spin()
+'''
+
+
+def test_without_the_package_it_says_not_installed(monkeypatch):
+    monkeypatch.setattr(peer, 'PACKAGE', 'multirobot_map_merge_surely_absent')
+    assert peer.available() == (False, peer.NOT_INSTALLED)
+    assert peer.live_node() is None
+    res = peer.run_node(['a.yaml', 'b.yaml'])
+    assert res == {'invalid': peer.NOT_INSTALLED}
+    assert peer.column(res, 'first_map_s') == 'm-explore not installed (ros-noetic-multirobot-map-merge): not measured'
+    assert peer.column(None, 'rss_mb') == peer.NOT_INSTALLED
+
+
+def test_on_this_machine_the_answer_matches_rospack():
+    installed = subprocess.run(['rospack', 'find', 'multirobot_map_merge'], capture_output=True,
+                               env=peer.ENV).returncode == 0
+    assert peer.available()[0] == installed
+
+
+def test_the_measuring_path_with_a_stand_in_node(tmp_path, monkeypatch):
+    if subprocess.run(['which', 'rosmaster'], capture_output=True).returncode != 0:
+        pytest.skip('no rosmaster here')
+    exe = tmp_path / 'map_merge'
+    exe.write_text(STAND_IN)
+    exe.chmod(exe.stat().st_mode | stat.S_IEXEC)
+    monkeypatch.setattr(peer, 'available', lambda: (True, ''))
+    monkeypatch.setattr(peer, 'node_path', lambda: str(exe))
+    maps = [os.path.join(REPO, 'test', 'data', 'intel.yaml')] * 2
+    res = peer.run_node(maps, timeout=60, settle=0.5, out_dir=str(tmp_path / 'run'))
+    assert 'invalid' not in res, res
+    assert 0 < res['first_map_s'] < 60 and res['cpu_s'] > 0 and res['rss_mb'] > 5
+    assert os.path.exists(res['merged_yaml'])
