@@ -24,6 +24,7 @@ import socket
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 
 PACKAGE, NODE = 'multirobot_map_merge', 'map_merge'
@@ -66,13 +67,23 @@ def live_node():
     return node_path() if available()[0] else None
 
 
+_given = set()
+_given_lock = threading.Lock()
+
+
 def free_port():
-    for port in PORTS:
-        with socket.socket() as s:
-            try:
-                s.bind(('127.0.0.1', port))
-            except OSError:
+    """A free port of 12500-12599 not handed out before in this process (threads may run
+    several nodes at once)."""
+    with _given_lock:
+        for port in PORTS:
+            if port in _given:
                 continue
+            with socket.socket() as s:
+                try:
+                    s.bind(('127.0.0.1', port))
+                except OSError:
+                    continue
+            _given.add(port)
             return port
     raise RuntimeError('no free port in 12500-12599 for a master')
 
@@ -233,5 +244,35 @@ def column(res, key, fmt='%.2f'):
     return fmt % res[key]
 
 
-if __name__ == '__main__' and len(sys.argv) == 3 and sys.argv[1] == '--feed':
-    sys.exit(_feed(sys.argv[2]))
+def main(argv=None):
+    """``peer.py A.yaml B.yaml ... -o merged.yaml [--settle S] [--timeout S]``: m-explore's node on
+    the maps (known_init_poses false), its last merged /map ``settle`` s after its first saved as
+    merged.yaml, its figures printed as one JSON line; exit 3 when it is not installed, 1 when it
+    gave no merged map."""
+    import argparse
+    import shutil
+    ap = argparse.ArgumentParser(description=main.__doc__.split('\n\n')[0])
+    ap.add_argument('maps', nargs='+')
+    ap.add_argument('-o', '--output', required=True)
+    ap.add_argument('--settle', type=float, default=10.0)
+    ap.add_argument('--timeout', type=float, default=300.0)
+    a = ap.parse_args(argv)
+    if not available()[0]:
+        print(available()[1], file=sys.stderr)
+        return 3
+    res = run_node(a.maps, timeout=a.timeout, settle=a.settle)
+    print(json.dumps(res))
+    if 'invalid' in res:
+        return 1
+    src = res['merged_yaml']
+    base = os.path.splitext(a.output)[0]
+    shutil.copy(os.path.splitext(src)[0] + '.pgm', base + '.pgm')
+    with open(src) as f, open(a.output, 'w') as g:
+        g.write(f.read().replace(os.path.basename(os.path.splitext(src)[0]) + '.pgm', os.path.basename(base) + '.pgm'))
+    return 0
+
+
+if __name__ == '__main__':
+    if len(sys.argv) == 3 and sys.argv[1] == '--feed':
+        sys.exit(_feed(sys.argv[2]))
+    sys.exit(main())
