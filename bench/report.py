@@ -90,7 +90,7 @@ def rows_table(rows, peer_note):
             r['name'], '%dk' % (o['map_cells'] // 1000), r['robots'], _f(o['features_ms'], '%.1f'),
             _f(o['pair_ms']), _f(o['cold_ms']), _f(o['warm_ms'], '%.2f'),
             _f(o['compose_ms'] + o['publish_ms'], '%.1f'), _f(o.get('live_ms'), '%.1f'), mcell, ratio, mx))
-    h = '%-16s %3s | %-24s | %-8s | %-12s | %-30s | %-30s | %s' % (
+    h = '%-16s %3s | %-24s | %-8s | %-17s | %-30s | %-30s | %s' % (
         'input', 'N', 'ours MB (node alone)', 'MRPT MB', 'placed (ok)', 'max error: ours', 'MRPT', 'm-explore MB')
     out += ['', 'MEMORY AND CORRECTNESS  (placed: robots put in the merged frame besides the reference, ours / '
             'MRPT; ok: within %.1f m and %.0f deg of the truth; peak memory: ours = the node\'s process tree '
@@ -112,7 +112,7 @@ def rows_table(rows, peer_note):
             if s.get('placed') is None:
                 return (s.get('skipped') or '-')[:30]
             return '%s m %s deg' % (_f(s.get('max_err_m'), '%.3f'), _f(s.get('max_err_deg'), '%.2f'))
-        out.append('%-16s %3d | %-24s | %-8s | %-12s | %-30s | %-30s | %s' % (
+        out.append('%-16s %3d | %-24s | %-8s | %-17s | %-30s | %-30s | %s' % (
             r['name'], r['robots'], '%.0f (%s)' % (o['rss_mb'], _f(o.get('rss_self_mb'))),
             _f(m.get('rss_mb')), '%s / %s' % (pl(o), pl(m)), er(o), er(m),
             mexplore_cell(r, 'rss_mb', '%.0f')))

@@ -61,3 +61,26 @@ def test_the_measuring_path_with_a_stand_in_node(tmp_path, monkeypatch):
     assert 'invalid' not in res, res
     assert 0 < res['first_map_s'] < 60 and res['cpu_s'] > 0 and res['rss_mb'] > 5
     assert os.path.exists(res['merged_yaml'])
+
+
+def test_the_bench_tables_say_not_installed_in_every_mexplore_cell():
+    import report
+    ours = {'map_cells': 400000, 'features_ms': 40.0, 'pair_ms': 45.0, 'cold_ms': 900.0, 'warm_ms': 1.1,
+            'compose_ms': 8.0, 'publish_ms': 1.0, 'live_ms': 2.0, 'rss_mb': 230.0, 'rss_self_mb': 190.0,
+            'placed': 3, 'errors': {'r01': (0.02, 0.1)}, 'max_err_m': 0.02, 'max_err_deg': 0.1}
+    mrpt = {'align_s': 0.9, 'wall_s': 2.0, 'rss_mb': 150.0, 'placed': 3, 'errors': {'r01': (0.1, 0.5)},
+            'max_err_m': 0.1, 'max_err_deg': 0.5}
+    rows = [{'name': 'intel 4', 'kind': 'size', 'robots': 4, 'ours': ours, 'mrpt': mrpt,
+             'mexplore': {'invalid': peer.NOT_INSTALLED}}]
+    text = report.rows_table(rows, peer.NOT_INSTALLED)
+    lines = [ln for ln in text.splitlines() if ln.startswith('intel 4')]
+    assert len(lines) == 2 and all(ln.endswith(peer.NOT_INSTALLED) for ln in lines)
+    assert '0.90 (2.00)' in lines[0] and '3 (1) / 3 (1)' in lines[1]
+
+
+def test_scale_says_what_the_node_gave():
+    import scale
+    line = scale.peer_line(8, {'run': True, 'first_map_s': 3.2, 'cpu_s': 2.5, 'rss_mb': 120.0})
+    assert line.startswith('  m-explore: 8 robots: first merged /map 3.20 s after its node started')
+    assert scale.peer_line(8, {'run': False, 'why': peer.NOT_INSTALLED}) == \
+        '  m-explore: not run (%s)' % peer.NOT_INSTALLED
