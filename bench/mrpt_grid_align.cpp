@@ -11,6 +11,7 @@
 //   {"i", "j", "kept", "modes", "pose": [x, y, yaw] (grid j's frame in grid i's frame, the most
 //    likely mode of the returned sum of Gaussians), "cov": 9 numbers (that mode's), "icp_goodness",
 //    "seconds"}
+// and a last line {"peak_rss_kb"}: its own peak RSS (VmHWM).
 // "kept" is MRPT's own verdict: the sum of Gaussians is not empty (some hypothesis passed the
 // aligner's gates: RANSAC consensus, ICP goodness, ICP shift).
 //
@@ -32,6 +33,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <exception>
+#include <fstream>
 #include <iostream>
 #include <string>
 #include <vector>
@@ -175,5 +177,11 @@ int main(int argc, char** argv)
 		std::cerr << "mrpt_grid_align: " << mrpt::exception_to_str(e) << "\n";
 		return 1;
 	}
+	// this process's own peak RSS (its parent's rusage would also count the pages of the process
+	// it was forked from, before its exec)
+	std::ifstream status("/proc/self/status");
+	for (std::string line; std::getline(status, line);)
+		if (line.rfind("VmHWM:", 0) == 0)
+			std::cout << "{\"peak_rss_kb\": " << std::strtol(line.c_str() + 6, nullptr, 10) << "}" << std::endl;
 	return 0;
 }

@@ -80,6 +80,15 @@ def binary():
     return exe
 
 
+def peak_rss_mb():
+    """This process's peak RSS (VmHWM), MB."""
+    with open('/proc/self/status') as f:
+        for line in f:
+            if line.startswith('VmHWM:'):
+                return int(line.split()[1]) / 1024.0
+    return None
+
+
 def se2(x, y, yaw):
     c, s = math.cos(yaw), math.sin(yaw)
     return np.array([[c, -s, x], [s, c, y], [0.0, 0.0, 1.0]])
@@ -120,15 +129,19 @@ def align_all(grids, seed=1, icp=True, work=None):
     if r.returncode != 0:
         raise RuntimeError('mrpt_grid_align failed (exit %d): %s' % (r.returncode, r.stderr[-800:]))
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    # the driver's own figures: this process's children are the driver alone (and any earlier
-    # driver or compiler, whose peak RSS would then be counted: ru_maxrss is of the largest child)
-    DRIVER.update({'wall_s': time.time() - t0, 'rss_mb': after.ru_maxrss / 1024.0,
+    # the driver's own figures: CPU from this process's children (the driver alone since
+    # ``before``); peak RSS as the driver reads its own (a child's ru_maxrss would count this
+    # process's pages too: a forked child starts with them until its exec)
+    DRIVER.update({'wall_s': time.time() - t0, 'rss_mb': None,
                    'cpu_s': (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime)})
     out = []
     for line in r.stdout.splitlines():
         if not line.startswith('{'):
             continue
         p = json.loads(line)
+        if 'peak_rss_kb' in p:
+            DRIVER['rss_mb'] = p['peak_rss_kb'] / 1024.0
+            continue
         if p['kept']:
             gi, gj = grids[p['i']], grids[p['j']]
             # the driver's frames have their origin at each grid's lower-left corner
@@ -241,6 +254,7 @@ def main(argv=None):
     grid = composite_grids(grids, poses, ref)
     if grid is not None:
         save_map(grid, a.output)
+    rep['frontend_rss_mb'] = peak_rss_mb()
     if a.transforms:
         with open(a.transforms, 'w') as f:
             yaml.safe_dump(rep, f, default_flow_style=None, sort_keys=False)

@@ -77,8 +77,9 @@ def run_ours(paths, truth, runs, pairs, root, reps):
 
 def run_mrpt_once(paths, truth, root):
     """One fresh process of bench/mrpt_merge.py on ``paths`` (reference: the first map, seed 1):
-    its wall time, its tree's CPU and peak RSS (wait4: the front end and the aligner it runs),
-    the aligner's own figures (T.yaml ``driver``), placements and their errors against ``truth``."""
+    its wall time and its tree's CPU (wait4: the front end and the aligner it runs), the
+    aligner's own figures (T.yaml ``driver``: wall, CPU, peak RSS as it reads its own VmHWM), the
+    front end's peak RSS, placements and their errors against ``truth``."""
     import numpy as np
     import yaml
 
@@ -103,7 +104,7 @@ def run_mrpt_once(paths, truth, root):
             d, ang = pose_distance(se2(v['x'], v['y'], v['yaw']), np.array(truth[k]))
             errs[st] = (float(d), math.degrees(float(ang)))
     drv = rep.get('driver') or {}
-    return {'wall_s': wall, 'cpu_s': ru.ru_utime + ru.ru_stime, 'rss_tree_mb': ru.ru_maxrss / 1024.0,
+    return {'wall_s': wall, 'cpu_s': ru.ru_utime + ru.ru_stime, 'rss_frontend_mb': rep.get('frontend_rss_mb'),
             'align_s': drv.get('wall_s'), 'align_cpu_s': drv.get('cpu_s'), 'rss_mb': drv.get('rss_mb'),
             'placed': sum(1 for v in rep['maps'].values() if v.get('merged')),
             'errors': errs if truth is not None else {},
