@@ -88,6 +88,11 @@ def free_port():
     raise RuntimeError('no free port in 12500-12599 for a master')
 
 
+def _listening(port):
+    with socket.socket() as s:
+        return s.connect_ex(('127.0.0.1', port)) == 0
+
+
 def _proc_figures(pid):
     """(CPU s, peak RSS MB) of a live process, from /proc."""
     with open('/proc/%d/stat' % pid) as f:
@@ -134,6 +139,11 @@ def run_node(paths, poses=None, timeout=120.0, settle=0.0, out_dir=None):
     spec = os.path.join(work, 'feed.json')
     result = os.path.join(work, 'first_map.json')
     try:
+        t_end = time.time() + 20
+        while not _listening(port):                    # the master is up
+            if master.poll() is not None or time.time() > t_end:
+                return {'invalid': 'the master did not start on port %d (%s)' % (port, log.name)}
+            time.sleep(0.1)
         with open(spec, 'w') as f:
             json.dump({'paths': [os.path.abspath(p) for p in paths], 'poses': poses, 'timeout': timeout,
                        'settle': settle, 'result': result, 'merged_yaml': os.path.join(work, 'merged.yaml')}, f)
