@@ -80,25 +80,31 @@ demo: build
 clean:
 	rm -rf $(WS) demo_output
 
-# Speed and memory against m-explore on the same maps (not part of `make test`): prints a table,
-# writes bench/results/{bench.json,bench.png,live.json}. m-explore is measured when ../shared is present.
+# Speed and memory against the peers on the same maps (not part of `make test`): prints a table,
+# writes bench/results/{bench.json,bench.png,live.json}. MRPT's CGridMapAligner (libmrpt-dev, Debian)
+# through the project's own driver bench/mrpt_grid_align.cpp, which bench/mrpt_merge.py builds with
+# g++ on first use into /tmp/mmm_mrpt_grid_align; m-explore's map_merge node only where it is
+# installed (Ubuntu: ros-noetic-multirobot-map-merge), else its columns say "not installed".
 # (python3-matplotlib, for its plot, is one of APT_PKGS: build installs it)
 # Then bench/scale.py: teams of 8-64 robots whose maps grow live, merged in real time (about 15 min;
 # bench/results/scale.{json,txt}). Then bench/cluster_overhead.py: ms per pair through the local pool
 # and through a Dask cluster it starts on the loopback (~dask_scheduler), same results checked
 # (about 15 s; bench/results/cluster_overhead.txt).
+BENCH_PKGS := libmrpt-dev
 bench: build
+	$(call apt_install,$(BENCH_PKGS))
 	@$(ROS_ENV) && cd $(CURDIR) && python3 bench/run_bench.py && python3 bench/live_gap.py && python3 bench/pinning_cost.py | tee bench/results/pinning_cost.txt && python3 bench/scale.py \
 	  && python3 bench/cluster_overhead.py -o bench/results/cluster_overhead.txt
 
 # The paper's experiment as a benchmark (not part of `make test`): 4 Turtlebot3s merged vs 1 alone,
-# every map made by real gmapping (slam_gmapping_replay, every scan), 5 seeds x 2 worlds (the
-# project's own home, the Intel lab of ../shared/data), against the rigid bound and m-explore's and MRPT's
-# merges; writes bench/results/accuracy.{json,md,txt}. Bags and maps are cached in /tmp/mmm_accuracy.
-# ACCURACY_ARGS=--quick: 1 seed, the home only (accuracy_quick.*); --worlds home,house,intel adds the
-# AWS small house of ../shared/data; see bench/README.md.
+# every map made by a real SLAM per robot (every scan), 5 seeds x 2 worlds (the project's own home,
+# the Intel lab of ../shared/data), against the rigid bound and MRPT's merge (and m-explore's where
+# its node is installed); writes bench/results/accuracy.{json,md,txt}. Bags and maps are cached in
+# /tmp/mmm_accuracy. ACCURACY_ARGS=--quick: 1 seed, the home only (accuracy_quick.*); --worlds
+# home,house,intel adds the AWS small house of ../shared/data; see bench/README.md.
 ACCURACY_ARGS ?=
 accuracy: build
+	$(call apt_install,$(BENCH_PKGS))
 	@$(ROS_ENV) && cd $(CURDIR) && python3 bench/accuracy.py $(ACCURACY_ARGS)
 
 # Placement covariances against the real error on REAL gmapping maps of REAL CARMEN logs (not

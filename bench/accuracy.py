@@ -21,10 +21,13 @@ For every world and seed:
    at 0.10 m): the single robot's map, our ``merge_maps`` on the four final maps, each robot's map
    alone (mean), the **rigid bound** (every robot's map placed at its own map's best fit to the
    truth and composited as ``merge_maps`` composites: what a merge that places every robot
-   perfectly, rigidly, could reach), and m-explore's and MRPT's merges of the same four maps
-   (``merge_maps_mexplore``, ``merge_maps_mrpt``; their transforms composited the same way, so
-   that only the placements differ between the merge rows; robots they did not merge are left
-   out, and how many they merged is printed).
+   perfectly, rigidly, could reach), and m-explore's and MRPT's merges of the same four maps.
+   MRPT: ``bench/mrpt_merge.py`` (its CGridMapAligner through the project's own driver, built
+   on first use); its transforms composited the same way, so that only the placements differ
+   between the merge rows; robots it did not merge are left out, and how many it merged is
+   printed. m-explore: where its node is installed (ros-noetic-multirobot-map-merge;
+   ``bench/peer.py``), its own merged /map (known_init_poses false, the last one 10 s after its
+   first) scored as it is (it publishes no placements); elsewhere its row is INVALID: not installed.
 
 Every map is scored from its frame's known start pose (the reference robot's, for a merge) and
 from ``best_fit_score``'s eight headings; the best Fitness is kept (a distorted map's ICP from
@@ -124,10 +127,8 @@ SIM_SOURCES = [os.path.join(REPO, 'src', 'multi_map_merge', p) for p in
                 'lab/worlds.py')]
 # (the gmapping maps are keyed by what the bags hold, not by these: bags remade alike keep them)
 BAG_ARGS = ['--robots', '4', '--sensors-only']
-MEXPLORE = os.path.join(SHARED, 'peers', 'mexplore')
-MRPT = os.path.join(SHARED, 'peers', 'mrpt')
-PEER_WS = os.environ.get('PEER_WS', '/tmp/peer_ws')
-MRPT_BIN = os.environ.get('MRPT_PEER_BIN', '/tmp/mrpt_peer/mrpt_align')
+MRPT_TOOL = os.path.join(HERE, 'mrpt_merge.py')      # MRPT's aligner, the project's own driver
+MEXPLORE_TOOL = os.path.join(HERE, 'peer.py')        # m-explore's node, where installed
 NICENESS = 10   # of this process and so of everything it starts (they inherit it)
 PY = '/usr/bin/python3' if os.path.exists('/usr/bin/python3') else sys.executable
 
@@ -639,22 +640,20 @@ def run_gmapping(exe: str, bag: str, topic: str, name: str, seed: int, config: s
 # ------------------------------------------------------------------------------ peers
 
 def peers_available(build: bool) -> Dict[str, Optional[str]]:
-    """peer -> None (usable) or why not. Builds a missing peer with its build.sh (``build``)."""
+    """peer -> None (usable) or why not. MRPT's driver is built here (``build``), not inside a
+    timed merge; m-explore is used only where its node is installed."""
+    import mrpt_merge
+    import peer
     out: Dict[str, Optional[str]] = {}
-    for name, root, exe, tool in (
-            ('mexplore', MEXPLORE, os.path.join(PEER_WS, 'mexplore_merge'), 'merge_maps_mexplore'),
-            ('mrpt', MRPT, MRPT_BIN, 'merge_maps_mrpt')):
-        if not os.path.exists(os.path.join(root, tool)):
-            out[name] = '%s is absent' % os.path.relpath(os.path.join(root, tool), REPO)
-            continue
-        if not os.path.exists(exe) and build:
-            say('%s accuracy: building %s (%s/build.sh) ...' % (stamp(), name, os.path.relpath(root, REPO)))
-            log = os.path.join(ARGS.work, 'build_%s.log' % name)
-            r = run_timed([os.path.join(root, 'build.sh')], log, child_env(), 1800)
-            if r['rc'] != 0:
-                say('  %s did not build (exit %s, see %s)' % (name, r['rc'], log))
-        out[name] = None if os.path.exists(exe) else '%s is not built (%s missing: run %s/build.sh)' % (
-            name, exe, os.path.relpath(root, REPO))
+    ok, why = peer.available()
+    out['mexplore'] = None if ok else why
+    ok, why = mrpt_merge.available()
+    if ok and build:
+        try:
+            say('%s accuracy: MRPT driver: %s' % (stamp(), mrpt_merge.binary()))
+        except RuntimeError as e:
+            ok, why = False, 'MRPT\'s driver did not build: %s' % e
+    out['mrpt'] = None if ok else why
     return out
 
 
@@ -905,15 +904,21 @@ class Condition:
         for p in (merged, tf):
             if os.path.exists(p):
                 os.remove(p)
-        tool = (os.path.join(MEXPLORE, 'merge_maps_mexplore') if peer == 'mexplore'
-                else os.path.join(MRPT, 'merge_maps_mrpt'))
-        cmd = [PY, tool] + paths + ['-o', merged, '--transforms', tf, '--reference', TEAM[0]]
-        if peer == 'mrpt':
-            cmd += ['--seed', str(self.seed)]
+        tool = MEXPLORE_TOOL if peer == 'mexplore' else MRPT_TOOL
+        if peer == 'mexplore':     # its node's own merged /map: no placements to composite
+            cmd = [PY, tool] + paths + ['-o', merged, '--settle', '10']
+        else:
+            cmd = [PY, tool] + paths + ['-o', merged, '--transforms', tf, '--reference', TEAM[0],
+                                        '--seed', str(self.seed)]
         log = os.path.join(out, 'merge.log')
-        r = run_timed(cmd, log, child_env(PEER_WS=PEER_WS, MRPT_PEER_BIN=MRPT_BIN), 1800)
-        if r['rc'] != 0 or not os.path.exists(tf):
+        r = run_timed(cmd, log, child_env(), 1800)
+        if r['rc'] != 0 or not os.path.exists(merged if peer == 'mexplore' else tf):
             return Invalid('%s failed (exit %s, %s)' % (os.path.basename(tool), r['rc'], log)), None, {}
+        if peer == 'mexplore':
+            from multi_map_merge.core.mapio import load_map
+            s = best_score(load_map(merged), truth, [starts[TEAM[0]]])
+            s['wall_s'] = r['wall_s']
+            return (s['fitness'] if 'fitness' in s else Invalid(s['invalid'])), 'its merged /map', s
         with open(tf) as f:
             rep = yaml.safe_load(f) or {}
         ref = str(rep.get('reference', TEAM[0]))
@@ -1258,7 +1263,7 @@ def parse_args(argv: Optional[List[str]] = None):
     ap.add_argument('--results', default=os.path.join(HERE, 'results'), help='where accuracy.{json,md,txt} go')
     ap.add_argument('--jobs', type=int, default=2, help='heavy steps at once (1 or 2; default 2)')
     ap.add_argument('--port', type=int, default=12500, help='first port tried for the roscores (default 12500)')
-    ap.add_argument('--no-build', action='store_true', help='do not build missing peers')
+    ap.add_argument('--no-build', action='store_true', help='do not build MRPT\'s driver (bench/mrpt_merge.py)')
     ap.add_argument('--unbent', action='store_true',
                     help='our merge with bend_maps false (default: true; the row "ours, unbent" composites '
                          'the same placements rigidly either way)')

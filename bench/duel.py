@@ -1,16 +1,14 @@
-"""Compositing (and cold estimation) measured in pairs: our merger's and m-explore's, burst after
-burst, in the same minutes.
+"""Figures measured in pairs: two or more long-lived processes, burst after burst, in the same
+minutes (bench/versus.py: this tree's cold estimation against another commit's).
 
 This VM's speed drifts by up to a factor of two over minutes (other guests share its cores), so
 two figures taken minutes apart can put a ratio near 1 on either side of it. Here each side is
-a long-lived process that has already loaded its maps and placed them; each round asks every
-side for one burst (COMPOSE_REPS back-to-back compositions, their median), in an order that
-rotates from round to round. Each round gives a ratio of ours over each peer burst; the figure is
-the median over the rounds, of the times and of the ratios. Cold estimation is paired the same
-way, one full cycle per burst on each side.
+a long-lived process that has already loaded its maps; each round asks every side for one burst,
+in an order that rotates from round to round. Each round gives a ratio of ours over each other
+side's burst; the figure is the median over the rounds, of the times and of the ratios.
 
 The processes speak JSON lines: a first line {"ready": true, ...}, then one line per line they
-read on stdin (bench/ours.py --serve / --serve-estimate, bench/mexplore_compose.cpp --serve).
+read on stdin (bench/ours.py --serve / --serve-estimate).
 """
 from __future__ import annotations
 

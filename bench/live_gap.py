@@ -23,9 +23,10 @@ cycles, in merge periods (target <= 1.5), and the TF rate. INVALID instead of a 
 estimation cycle of at least ``--min-periods`` merge periods is known to have run inside the
 measured span (from the first /map to the end of the window) for at least that long: then the
 bench did not create the condition it measures. A cycle still running when the window ends is
-waited for (/diagnostics only, up to a minute) and counts for its part inside the window. When
-m-explore is built (../shared/peers/mexplore), its live node is measured the same way on the same
-maps.
+waited for (/diagnostics only, up to a minute) and counts for its part inside the window. Where
+m-explore's node is installed (ros-noetic-multirobot-map-merge: `rospack find
+multirobot_map_merge`), it is measured the same way on the same maps; elsewhere its line says it
+is not installed (bench/peer.py).
 """
 from __future__ import annotations
 
@@ -44,7 +45,7 @@ REPO = os.path.dirname(HERE)
 sys.path.insert(0, HERE)
 sys.path.insert(0, os.path.join(REPO, 'src'))
 from inputs import pieces_windows, world_map  # noqa: E402
-from peer import live_node  # noqa: E402
+from peer import NOT_INSTALLED, live_node  # noqa: E402
 from report import machine  # noqa: E402
 
 from multi_map_merge.core.mapio import save_map  # noqa: E402
@@ -280,8 +281,7 @@ def mexplore_node(no_peer: bool):
     if peer:
         return [peer, '_known_init_poses:=false', '_merging_rate:=2.0', '_discovery_rate:=0.5',
                 '_estimation_rate:=1.0'], ''
-    return None, ('not measured (--no-peer)' if no_peer else
-                  'NOT measured: m-explore is not built (../shared/peers/mexplore/build.sh)')
+    return None, ('not measured (--no-peer)' if no_peer else NOT_INSTALLED)
 
 
 def growing_map(path: str) -> dict:

@@ -17,14 +17,11 @@ SPEC: {"paths": [map yaml...], "truth": [3x3 pose of map k in map 0's frame] or 
                 each of a new merger (cold_first_ms: the process's first)
   warm_ms       estimate() again with unchanged maps
   ingest_ms     a map's classification as it arrives (update_map: levels, known box and the
-                values compositing warps), per map; not part of compose_ms, as m-explore's feed()
-                is not part of its compositing
+                values compositing warps), per map; not part of compose_ms
   compose_first_ms  compose() of that merger for the first time (every map warped), right
                 after its estimation, whose work ran in the worker processes while this one
                 waited: its caches and OpenCV's threads have gone cold (median of R)
-  compose_ms    compose() with every map warped again, COMPOSE_REPS times back to back as
-                m-explore's driver times its composeGrids(), median: how m-explore's figure
-                is measured
+  compose_ms    compose() with every map warped again, COMPOSE_REPS times back to back, median
   live_ms       compose() + publishing with one robot's map changed, the others' warps kept
                 (round robin over the robots but the reference), COMPOSE_REPS times, median
   publish_ms    ros.convert.grid_to_msg (numpy_msg OccupancyGrid) + msg.serialize(BytesIO) of
@@ -33,7 +30,7 @@ SPEC: {"paths": [map yaml...], "truth": [3x3 pose of map k in map 0's frame] or 
   rss_sum_mb    this process's ru_maxrss plus each worker process's VmHWM (shared pages counted
                 once per process: an upper bound, and not the node's imports: see --memory)
 and the placements (``poses``: x, y, yaw of each placed map's frame in map 0's frame, metres and
-radians; m-explore composites the same output on them), scored against ``truth`` when given.
+radians), scored against ``truth`` when given.
 """
 import io
 import json
@@ -141,7 +138,7 @@ def compose_burst(m):
 
 def serve(spec):
     """Estimate once, print {"ready": true, "poses": ...}, then one compose_burst() JSON line per
-    line read on stdin, until EOF: bench/duel.py alternates these bursts with m-explore's."""
+    line read on stdin, until EOF (bench/duel.py)."""
     from multi_map_merge.core.config import MergeConfig
     from multi_map_merge.core.mapio import load_map
     from multi_map_merge.core.merger import MapMerger
@@ -160,7 +157,7 @@ def serve(spec):
 def serve_estimate(spec):
     """Start the worker pool, print {"ready": true}, then for every line read on stdin one cold
     estimation cycle (a new MapMerger holding every map, as in main()), printed as {"ms": ...,
-    "placed": ...}: bench/duel.py alternates these cycles with m-explore's estimateTransforms()."""
+    "placed": ...}: bench/versus.py alternates these cycles with another commit's (bench/duel.py)."""
     from multi_map_merge.core.config import MergeConfig
     from multi_map_merge.core.mapio import load_map
     from multi_map_merge.core.merger import MapMerger

@@ -1,20 +1,18 @@
-"""m-explore's side: ../shared/peers/mexplore/merge_maps_mexplore on the very same map files.
+"""m-explore's side of the benchmarks: its ``map_merge`` node (package ``multirobot_map_merge``,
+Ubuntu's ``ros-noetic-multirobot-map-merge``), run as the ROS node it is, where it is installed.
 
-Its tool prints only the median estimation and compositing times of a whole run, so:
-  features per map  = estimation of a run on that one map (AKAZE only: with one image there is
-                      nothing to match);
-  per pair          = estimation of a run on the two maps minus both maps' feature times
-                      (matching + bundle adjustment of one pair);
-  peak RSS          = ru_maxrss of the mexplore_merge process itself (wait4 on it, through a
-                      wrapper placed in a private PEER_WS, so the Python front end is not counted);
-  compositing       = its composeGrids(), timed by bench/mexplore_compose.cpp (our driver of its
-                      library, built here against the peer's build) in bursts alternated with
-                      ours (bench/duel.py): on its own estimate, and on the poses our merger
-                      found (the same output: where its own estimate is wrong, its compositing
-                      time is that of another output);
-  paired estimation = its estimateTransforms(), timed by the same driver, one cycle per burst
-                      alternated with one cold cycle of ours (bench/duel.py).
-Nothing of m-explore is part of the project; when ../shared is absent every call here says so.
+Nothing of m-explore is built here: it is measured only where ``rospack find
+multirobot_map_merge`` succeeds. Elsewhere (Debian 12 has no such package) every figure of it says
+NOT_INSTALLED, never a number.
+
+One measurement (:func:`run_node`): a master of its own (a port in 12500-12599), the robots' maps
+published latched on ``/robot_k/map`` by a feeder (this file with ``--feed``, in its own process:
+rospy is initialised once per process), the node started with ``known_init_poses`` false (it
+estimates the transforms itself, as ours does) or true with each robot's
+``/robot_k/map_merge/init_pose_{x,y,z,yaw}`` set, as its parameters say; then its merged ``/map``
+is read. Figures: the time from the node's start to its first merged ``/map`` (m-explore publishes
+one only once it has placed two maps or more), the CPU seconds of its process by then and its peak
+RSS (VmHWM). A run that saw no ``/map`` in time says INVALID with why, not a number.
 """
 from __future__ import annotations
 
@@ -22,171 +20,269 @@ import json
 import math
 import os
 import signal
+import socket
 import subprocess
+import sys
 import tempfile
+import threading
 import time
 
-import numpy as np
-from inputs import SHARED
-
-PEER = os.path.join(SHARED, 'peers', 'mexplore')
-PEER_WS = os.environ.get('PEER_WS', '/tmp/peer_ws')
+PACKAGE, NODE = 'multirobot_map_merge', 'map_merge'
+NOT_INSTALLED = 'm-explore not installed (ros-noetic-multirobot-map-merge): not measured'
 ENV = dict(os.environ, PATH='/usr/bin:/bin:' + os.environ.get('PATH', ''))
+PORTS = range(12500, 12600)
+# the node's rates (Hz): discovery of robots' topics, estimation, merging; its defaults (0.05,
+# 0.5, 4) would make the first discovery alone wait 20 s
+RATES = {'discovery_rate': 1.0, 'estimation_rate': 1.0, 'merging_rate': 2.0}
 
-_WRAPPER = r'''#!/usr/bin/python3
-import os, subprocess, sys
-p = subprocess.Popen([%(real)r] + sys.argv[1:])
-_, status, ru = os.wait4(p.pid, 0)
-with open(%(rss)r, 'a') as f:
-    f.write('%%d\n' %% ru.ru_maxrss)
-sys.exit(os.waitstatus_to_exitcode(status))
-'''
+
+def node_path():
+    """The installed map_merge executable, or None."""
+    r = subprocess.run(['rospack', 'find', PACKAGE], capture_output=True, text=True, env=ENV)
+    if r.returncode != 0:
+        return None
+    r = subprocess.run(['catkin_find', '--first-only', '--libexec', PACKAGE, NODE],
+                       capture_output=True, text=True, env=ENV)
+    p = r.stdout.strip()
+    if r.returncode == 0 and p and os.access(p, os.X_OK):
+        return p
+    # <prefix>/share/multirobot_map_merge -> <prefix>/lib/multirobot_map_merge/map_merge
+    share = subprocess.run(['rospack', 'find', PACKAGE], capture_output=True, text=True, env=ENV).stdout.strip()
+    p = os.path.join(os.path.dirname(os.path.dirname(share)), 'lib', PACKAGE, NODE)
+    return p if os.access(p, os.X_OK) else None
 
 
 def available():
-    """(True, '') or (False, why): builds the peer with its build.sh when ../shared is here
-    but PEER_WS is not built yet."""
-    if not os.path.isdir(PEER):
-        return False, '../shared/peers/mexplore is absent: m-explore columns NOT measured'
-    if not os.path.exists(os.path.join(PEER_WS, 'mexplore_merge')):
-        print('building m-explore into %s (../shared/peers/mexplore/build.sh) ...' % PEER_WS, flush=True)
-        r = subprocess.run([os.path.join(PEER, 'build.sh')], capture_output=True, text=True, env=ENV)
-        if r.returncode != 0 or not os.path.exists(os.path.join(PEER_WS, 'mexplore_merge')):
-            return False, 'm-explore did not build: %s' % (r.stdout + r.stderr)[-500:]
+    """(True, '') or (False, why): m-explore's node is installed."""
+    r = subprocess.run(['rospack', 'find', PACKAGE], capture_output=True, text=True, env=ENV)
+    if r.returncode != 0:
+        return False, NOT_INSTALLED
+    if node_path() is None:
+        return False, '%s found but not its %s node: m-explore not measured' % (PACKAGE, NODE)
     return True, ''
 
 
-def _build_driver(exe):
-    """Compile bench/mexplore_compose.cpp against the peer's built library, as the peer's
-    build.sh compiles its own driver."""
-    ws = PEER_WS
-    src = os.path.join(os.path.dirname(os.path.abspath(__file__)), 'mexplore_compose.cpp')
-    libs = subprocess.run(['pkg-config', '--libs', 'opencv4'], capture_output=True, text=True,
-                          env=ENV).stdout.split()
-    cmd = (['g++', '-O2', '-std=c++14', '-o', exe, src, '-I', os.path.join(ws, 'src', 'map_merge', 'include'),
-            '-I', '/usr/include/opencv4', os.path.join(ws, 'devel', 'lib', 'libcombine_grids.a')] + libs +
-           ['-lroscpp', '-lrosconsole', '-lroscpp_serialization', '-lrostime', '-lcpp_common', '-lboost_system'])
-    r = subprocess.run(cmd, capture_output=True, text=True, env=ENV)
-    if r.returncode != 0:
-        raise RuntimeError('cannot build %s: %s' % (exe, r.stderr[-500:]))
-
-
 def live_node():
-    p = os.path.join(PEER_WS, 'devel', 'lib', 'multirobot_map_merge', 'map_merge')
-    return p if os.path.exists(p) else None
+    """The node's executable when installed, else None (bench/live_gap.py, bench/soak.py)."""
+    return node_path() if available()[0] else None
 
 
-class TimedOut(RuntimeError):
-    """A :meth:`Peer.run` stopped at its time-out."""
+_given = set()
+_given_lock = threading.Lock()
 
 
-class Peer:
-    def __init__(self, root):
-        self.root = tempfile.mkdtemp(prefix='peer_', dir=root)
-        self.ws = os.path.join(self.root, 'ws')
-        os.makedirs(self.ws)
-        self.rss_file = os.path.join(self.root, 'rss.txt')
-        w = os.path.join(self.ws, 'mexplore_merge')
-        with open(w, 'w') as f:
-            f.write(_WRAPPER % {'real': os.path.join(PEER_WS, 'mexplore_merge'), 'rss': self.rss_file})
-        os.chmod(w, 0o755)
-        self.n = 0
-
-    def run(self, paths, reps, timeout=None):
-        """One merge_maps_mexplore run: (timing JSON, T.yaml report, peak RSS MB, wall s).
-        ``timeout`` (seconds, None: none): past it the run's whole process tree is stopped and
-        :class:`TimedOut` raised."""
-        import yaml
-        self.n += 1
-        out = os.path.join(self.root, 'run%03d' % self.n)
-        os.makedirs(out)
-        if os.path.exists(self.rss_file):
-            os.remove(self.rss_file)
-        cmd = [os.path.join(PEER, 'merge_maps_mexplore')] + list(paths) + [
-            '-o', os.path.join(out, 'm.yaml'), '--transforms', os.path.join(out, 'T.yaml'), '--reps', str(reps)]
-        t = time.time()
-        # a session of its own: on time-out its whole tree (the front end and mexplore_merge) is stopped
-        p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                             env=dict(ENV, PEER_WS=self.ws), start_new_session=True)
-        try:
-            stdout, stderr = p.communicate(timeout=timeout)
-        except subprocess.TimeoutExpired:
-            os.killpg(p.pid, signal.SIGKILL)
-            p.communicate()
-            why = 'its cycle on the %d maps did not end within %.0f s: stopped' % (len(paths), timeout)
-            raise TimedOut(why) from None
-        wall = time.time() - t
-        if p.returncode != 0:
-            raise RuntimeError('m-explore failed: %s' % stderr[-300:])
-        timing = json.loads(stdout.strip().splitlines()[-1])
-        rep = yaml.safe_load(open(os.path.join(out, 'T.yaml')))
-        rss = max(int(x) for x in open(self.rss_file).read().split()) / 1024.0
-        return timing, rep, rss, wall
-
-    def compose_cmd(self, paths, reps, poses=None, own_confidence=1.0):
-        """Command line of bench/mexplore_compose.cpp serving compositing bursts (bench/duel.py)
-        of ``reps`` composeGrids() each: of the maps placed at ``poses`` ({index: [x, y, yaw]},
-        pose of map k's frame in map 0's frame, metres and radians; map 0 is the reference), or,
-        without poses, of m-explore's own estimate (estimateTransforms once, ``own_confidence``
-        as merge_maps_mexplore's default)."""
-        return self._driver_cmd((['--own', repr(own_confidence)] if poses is None else []), paths, reps, poses)
-
-    def estimate_cmd(self, paths, reps, confidence=1.0):
-        """Command line of bench/mexplore_compose.cpp serving estimation bursts (bench/duel.py)
-        of ``reps`` estimateTransforms() each, as merge_maps_mexplore times them."""
-        return self._driver_cmd(['--estimate', repr(confidence)], paths, reps, None)
-
-    def _driver_cmd(self, flags, paths, reps, poses):
-        import yaml
-        exe = os.path.join(self.root, 'mexplore_compose')
-        if not os.path.exists(exe):
-            _build_driver(exe)
-        args = [exe] + list(flags) + ['--serve', str(reps)]
-        for k, path in enumerate(paths):
-            pose = [0.0, 0.0, 0.0] if poses is None else poses.get(str(k), poses.get(k))
-            if pose is None:
+def free_port():
+    """A free port of 12500-12599 not handed out before in this process (threads may run
+    several nodes at once)."""
+    with _given_lock:
+        for port in PORTS:
+            if port in _given:
                 continue
-            m = yaml.safe_load(open(path))
-            img = m['image'] if os.path.isabs(m['image']) else os.path.join(os.path.dirname(path), m['image'])
-            args += [img, repr(float(m['resolution'])), repr(float(m['origin'][0])),
-                     repr(float(m['origin'][1]))] + [repr(float(v)) for v in pose]
-        return args
+            with socket.socket() as s:
+                try:
+                    s.bind(('127.0.0.1', port))
+                except OSError:
+                    continue
+            _given.add(port)
+            return port
+    raise RuntimeError('no free port in 12500-12599 for a master')
 
-    def measure(self, paths, truth, reps, pairs, full=True):
-        """m-explore's figures for one configuration (see module docstring)."""
-        from multi_map_merge.core.transforms import pose_distance, se2
-        res = {}
-        feat = {}
-        for k in sorted({k for ab in pairs for k in ab}):
-            timing, _, _, _ = self.run([paths[k]], reps)
-            feat[k] = timing['estimate_ms']
-        res['features_ms'] = float(np.median(list(feat.values())))
-        pair = []
-        for a, b in pairs:
-            timing, _, _, _ = self.run([paths[a], paths[b]], reps)
-            pair.append(timing['estimate_ms'] - feat[a] - feat[b])
-        # Matching a pair small enough costs less than the noise of three runs' timings: the
-        # difference can come out <= 0, which is no figure (None; the raw differences are kept).
-        res['pair_raw_ms'] = pair
-        res['pair_ms'] = float(np.median(pair)) if np.median(pair) > 0 else None
-        if not full:
-            return res
-        timing, rep, rss, wall = self.run(paths, reps)
-        stems = [os.path.splitext(os.path.basename(p))[0] for p in paths]
-        placed = sum(1 for v in rep['maps'].values() if v.get('merged'))
-        errs = {}
-        if truth is not None and rep['reference'] in stems:
-            j = stems.index(rep['reference'])
-            for k, s in enumerate(stems):
-                v = rep['maps'].get(s)
-                if v and v.get('merged'):
-                    T_true = np.linalg.inv(np.array(truth[j])) @ np.array(truth[k])
-                    d, ang = pose_distance(se2(v['x'], v['y'], v['yaw']), T_true)
-                    errs[s] = (float(d), math.degrees(float(ang)))
-        res.update({'estimate_ms': timing['estimate_ms'], 'compose_ms': timing['compose_ms'],
-                    'rss_mb': rss, 'placed': placed, 'reference': rep['reference'], 'errors': errs,
-                    'scales': [round(v['scale'], 4) for v in rep['maps'].values() if v.get('merged')],
-                    'max_err_m': max([e[0] for e in errs.values()]) if errs else None,
-                    'max_err_deg': max([e[1] for e in errs.values()]) if errs else None,
-                    'wall_s': wall})
-        return res
+
+def _listening(port):
+    with socket.socket() as s:
+        return s.connect_ex(('127.0.0.1', port)) == 0
+
+
+def _proc_figures(pid):
+    """(CPU s, peak RSS MB) of a live process, from /proc."""
+    with open('/proc/%d/stat' % pid) as f:
+        fields = f.read().rsplit(')', 1)[1].split()
+    cpu = (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
+    hwm = None
+    with open('/proc/%d/status' % pid) as f:
+        for line in f:
+            if line.startswith('VmHWM:'):
+                hwm = int(line.split()[1]) / 1024.0
+    return cpu, hwm
+
+
+def _stop(p, group=False):
+    if p.poll() is None:
+        (os.killpg(p.pid, signal.SIGINT) if group else p.send_signal(signal.SIGINT))
+        try:
+            p.wait(10)
+        except subprocess.TimeoutExpired:
+            (os.killpg(p.pid, signal.SIGKILL) if group else p.kill())
+            p.wait()
+
+
+def run_node(paths, poses=None, timeout=120.0, settle=0.0, out_dir=None):
+    """m-explore's node on the maps ``paths`` (map_server yaml files; robot k publishes
+    ``paths[k]`` on /robot_k/map). ``poses``: None (``known_init_poses`` false) or [x, y, yaw]
+    per map, its ``init_pose``. After the first merged /map, /map is read ``settle`` s more and
+    the last one saved. Returns {'first_map_s', 'cpu_s', 'rss_mb', 'merged_yaml', 'maps_seen'}
+    or {'invalid': why}."""
+    ok, why = available()
+    if not ok:
+        return {'invalid': why}
+    exe = node_path()
+    work = out_dir or tempfile.mkdtemp(prefix='mmm_mexplore_')
+    os.makedirs(work, exist_ok=True)
+    port = free_port()
+    env = dict(ENV, ROS_MASTER_URI='http://127.0.0.1:%d' % port, ROS_IP='127.0.0.1',
+               ROS_HOME=os.path.join(work, 'ros_home'))
+    env.pop('ROS_HOSTNAME', None)
+    log = open(os.path.join(work, 'mexplore.log'), 'w')
+    master = subprocess.Popen(['rosmaster', '--core', '-p', str(port)], stdout=log, stderr=subprocess.STDOUT,
+                              env=env, start_new_session=True)
+    feeder = node = None
+    spec = os.path.join(work, 'feed.json')
+    result = os.path.join(work, 'first_map.json')
+    try:
+        t_end = time.time() + 20
+        while not _listening(port):                    # the master is up
+            if master.poll() is not None or time.time() > t_end:
+                return {'invalid': 'the master did not start on port %d (%s)' % (port, log.name)}
+            time.sleep(0.1)
+        with open(spec, 'w') as f:
+            json.dump({'paths': [os.path.abspath(p) for p in paths], 'poses': poses, 'timeout': timeout,
+                       'settle': settle, 'result': result, 'merged_yaml': os.path.join(work, 'merged.yaml')}, f)
+        feeder = subprocess.Popen([sys.executable, os.path.abspath(__file__), '--feed', spec], stdout=log,
+                                  stderr=subprocess.STDOUT, env=env)
+        ready = os.path.join(work, 'feed.ready')
+        t_end = time.time() + 60
+        while not os.path.exists(ready):           # params set, maps latched
+            if feeder.poll() is not None or time.time() > t_end:
+                return {'invalid': 'the maps\' feeder did not start (%s)' % log.name}
+            time.sleep(0.1)
+        args = [exe, '_known_init_poses:=%s' % ('false' if poses is None else 'true')] + [
+            '_%s:=%s' % kv for kv in RATES.items()]
+        t0 = time.time()
+        node = subprocess.Popen(args, stdout=log, stderr=subprocess.STDOUT, env=env)
+        with open(os.path.join(work, 'node_start'), 'w') as f:
+            f.write(repr(t0))
+        figures = None
+        while feeder.poll() is None:
+            if node.poll() is not None:
+                return {'invalid': 'm-explore\'s node exited (%s, see %s)' % (node.returncode, log.name)}
+            if figures is None and os.path.exists(result + '.first'):
+                figures = _proc_figures(node.pid)     # at its first merged map
+            time.sleep(0.05)
+        if not os.path.exists(result):
+            return {'invalid': 'no merged /map from m-explore within %.0f s: INVALID (%s)' % (timeout, log.name)}
+        with open(result) as f:
+            got = json.load(f)
+        cpu_end, rss = _proc_figures(node.pid)
+        cpu_first = figures[0] if figures else cpu_end
+        return {'first_map_s': got['first_t'] - t0, 'cpu_s': cpu_first, 'cpu_end_s': cpu_end, 'rss_mb': rss,
+                'merged_yaml': got.get('merged_yaml'), 'maps_seen': got['count'], 'log': log.name}
+    finally:
+        for p in (node, feeder):
+            if p is not None:
+                _stop(p)
+        _stop(master, group=True)
+        log.close()
+
+
+def _feed(spec_path):
+    """The feeder (its own process): sets the init poses, publishes every map latched on
+    /robot_k/map, waits for m-explore's merged /map, writes when the first came and saves the
+    last one."""
+    import rospy
+    from nav_msgs.msg import OccupancyGrid
+
+    sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), 'src'))
+    from multi_map_merge.core.grid import Grid
+    from multi_map_merge.core.mapio import load_map, save_map
+    with open(spec_path) as f:
+        spec = json.load(f)
+    rospy.init_node('mmm_peer_feed', disable_signals=True)
+    pubs = []
+    for k, path in enumerate(spec['paths']):
+        ns = '/robot_%d' % k
+        if spec['poses'] is not None:
+            x, y, yaw = spec['poses'][k]
+            for key, v in (('x', x), ('y', y), ('z', 0.0), ('yaw', yaw)):
+                rospy.set_param('%s/map_merge/init_pose_%s' % (ns, key), float(v))
+        g = load_map(path)
+        m = OccupancyGrid()
+        m.header.frame_id = 'robot_%d/map' % k
+        m.header.stamp = rospy.Time.now()
+        m.info.resolution = g.resolution
+        m.info.width, m.info.height = g.width, g.height
+        m.info.origin.position.x, m.info.origin.position.y = g.origin[0], g.origin[1]
+        m.info.origin.orientation.z, m.info.origin.orientation.w = math.sin(g.origin[2] / 2), math.cos(g.origin[2] / 2)
+        m.data = g.data.ravel().tolist()
+        p = rospy.Publisher(ns + '/map', OccupancyGrid, queue_size=1, latch=True)
+        p.publish(m)
+        pubs.append(p)
+    got = {'count': 0, 'first_t': None, 'last': None}
+
+    def on_map(msg):
+        got['count'] += 1
+        got['last'] = msg
+        if got['first_t'] is None:
+            got['first_t'] = time.time()
+            open(spec['result'] + '.first', 'w').close()
+
+    rospy.Subscriber('/map', OccupancyGrid, on_map, queue_size=1)
+    open(os.path.join(os.path.dirname(spec_path), 'feed.ready'), 'w').close()
+    start = os.path.join(os.path.dirname(spec_path), 'node_start')
+    while not os.path.exists(start):
+        time.sleep(0.05)
+    t_end = float(open(start).read()) + spec['timeout']
+    while time.time() < t_end and (got['first_t'] is None or time.time() < got['first_t'] + spec['settle']):
+        time.sleep(0.05)
+    if got['first_t'] is None:
+        return 1
+    msg = got['last']
+    import numpy as np
+    o = msg.info.origin
+    yaw = 2 * math.atan2(o.orientation.z, o.orientation.w)
+    grid = Grid(np.array(msg.data, np.int8).reshape(msg.info.height, msg.info.width), msg.info.resolution,
+                (o.position.x, o.position.y, yaw), frame_id='map')
+    save_map(grid, spec['merged_yaml'])
+    with open(spec['result'], 'w') as f:
+        json.dump({'first_t': got['first_t'], 'count': got['count'], 'merged_yaml': spec['merged_yaml']}, f)
+    return 0
+
+
+def column(res, key, fmt='%.2f'):
+    """A table cell of a run_node result: the figure, or why there is none."""
+    if res is None or 'invalid' in res:
+        return (res or {}).get('invalid', NOT_INSTALLED)
+    return fmt % res[key]
+
+
+def main(argv=None):
+    """``peer.py A.yaml B.yaml ... -o merged.yaml [--settle S] [--timeout S]``: m-explore's node on
+    the maps (known_init_poses false), its last merged /map ``settle`` s after its first saved as
+    merged.yaml, its figures printed as one JSON line; exit 3 when it is not installed, 1 when it
+    gave no merged map."""
+    import argparse
+    import shutil
+    ap = argparse.ArgumentParser(description=main.__doc__.split('\n\n')[0])
+    ap.add_argument('maps', nargs='+')
+    ap.add_argument('-o', '--output', required=True)
+    ap.add_argument('--settle', type=float, default=10.0)
+    ap.add_argument('--timeout', type=float, default=300.0)
+    a = ap.parse_args(argv)
+    if not available()[0]:
+        print(available()[1], file=sys.stderr)
+        return 3
+    res = run_node(a.maps, timeout=a.timeout, settle=a.settle)
+    print(json.dumps(res))
+    if 'invalid' in res:
+        return 1
+    src = res['merged_yaml']
+    base = os.path.splitext(a.output)[0]
+    shutil.copy(os.path.splitext(src)[0] + '.pgm', base + '.pgm')
+    with open(src) as f, open(a.output, 'w') as g:
+        g.write(f.read().replace(os.path.basename(os.path.splitext(src)[0]) + '.pgm', os.path.basename(base) + '.pgm'))
+    return 0
+
+
+if __name__ == '__main__':
+    if len(sys.argv) == 3 and sys.argv[1] == '--feed':
+        sys.exit(_feed(sys.argv[2]))
+    sys.exit(main())

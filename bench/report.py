@@ -6,9 +6,6 @@ import platform
 import time
 
 TOL_M, TOL_DEG = 0.5, 3.0   # a placement within these of the truth counts as correct
-PAIR_ESTIMATE_S = 5.0       # cold estimation is also measured in pairs (bench/duel.py, 11 rounds of
-# one cycle each side) where m-explore's cycle is shorter than this; the longer rows (edmonton,
-# 16 robots: 20-50 s a cycle) are far from the 0.5x line (0.04-0.11x)
 
 
 def machine():
@@ -55,29 +52,13 @@ def _f(v, fmt='%.0f'):
     return fmt % v
 
 
-def compose_cells(r):
-    """(ours: compose + publish ms, (m-explore on its own merge: ms, ratio), (on our poses: ms,
-    ratio), (ours with one robot's map changed: ms, ratio to m-explore on its own merge)) of a
-    row: the paired figures of bench/duel.py (each ratio the median of the rounds' ratios);
-    without m-explore, ours from bench/ours.py and no peer figures."""
-    d = r.get('compose') or {}
-    if not d:
-        o = r['ours']
-        return o['compose_ms'] + o['publish_ms'], (None, None), (None, None), (o.get('live_ms'), None)
-    pick = lambda k: (d[k]['compose_ms'], d[k]['ratio']) if d.get(k) else (None, None)  # noqa: E731
-    live = (d.get('ours_live_ms'), (d.get('own') or {}).get('live_ratio'))
-    return d['ours_ms'], pick('own'), pick('same_output'), live
-
-
-def cold_cells(r):
-    """(ours, m-explore, ratio, paired) of a row's cold estimation: the paired figures of
-    bench/duel.py (medians of the rounds, the ratio the median of the rounds' ratios) when the
-    row was paired, else each side's own runs."""
-    d = r.get('estimate') or {}
-    if d.get('mexplore'):
-        return d['ours_ms'], d['mexplore']['estimate_ms'], d['mexplore']['ratio'], True
-    a, b = r['ours']['cold_ms'], r['peer'].get('estimate_ms')
-    return a, b, _r(a, b), False
+def mexplore_cell(r, key, fmt):
+    """A row's m-explore figure, or why there is none (bench/peer.py: never a number when its
+    node is not installed)."""
+    mx = r.get('mexplore') or {}
+    if 'invalid' in mx or mx.get(key) is None:
+        return mx.get('invalid', '-')
+    return fmt % mx[key]
 
 
 def rows_table(rows, peer_note):
@@ -85,44 +66,41 @@ def rows_table(rows, peer_note):
     out = []
     if peer_note:
         out.append('NOTE: %s' % peer_note)
-    cols = ('input', 'cells', 'N', 'feat/map ms', 'pair ms', 'est cold ms', 'est warm ms',
-            'compose+publ ms', 'same output', 'one map changed')
-    h = '%-16s %5s %3s | %-21s | %-21s | %-24s | %-18s | %-26s | %-14s | %-15s' % cols
-    out += ['', 'TIME  (each cell: ours / m-explore = ratio; ratio < 1: we are faster. compose: '
-            'ours + publishing against m-explore\'s compositing of its own merge; same output: its '
-            'compositing of the maps at our poses, ms = ratio; one map changed: ours when one robot\'s map '
-            'changed (the others\' warps kept, as live), ms = ratio to m-explore\'s own, which warps every map '
-            'each cycle. Compositing and, where m-explore\'s '
-            'cycle is under %.0f s, cold estimation are measured in pairs, burst after burst '
-            '(bench/duel.py): medians of the rounds and of their ratios; * = cold estimation not '
-            'paired, one set of runs each)' % (PAIR_ESTIMATE_S,),
+    cols = ('input', 'cells', 'N', 'feat/map ms', 'pair ms', 'est cold ms', 'est warm ms', 'compose+publ ms',
+            'one map chg ms', 'MRPT align s (run s)', 'ours/MRPT', 'm-explore: first merged /map')
+    h = '%-16s %5s %3s | %-11s | %-8s | %-11s | %-11s | %-15s | %-14s | %-20s | %-9s | %s' % cols
+    out += ['', 'TIME  (ours: bench/ours.py, medians of fresh processes; est cold: a whole estimation '
+            'cycle of a new merger; one map chg: compose + publish when one robot\'s map changed. MRPT: '
+            'CGridMapAligner on every pair (bench/mrpt_merge.py, seed 1): its aligner process (maps read, '
+            'features, every pair) in s, the whole run (Python start, map I/O, compositing) in brackets; '
+            'ours/MRPT = est cold / MRPT align (< 1: we are faster). m-explore: its node, from its start '
+            'to its first merged /map (discovery and estimation at 1 Hz), CPU s in brackets)',
             h, '-' * len(h)]
     for r in rows:
-        o, p = r['ours'], r['peer']
-
-        def trip(a, b, fa='%.1f', fb='%.1f'):
-            return '%s / %s = %s' % (_f(a, fa), _f(b, fb), _f(_r(a, b), '%.2fx'))
-        cp, own, same, live = compose_cells(r)
-        ca, cb, cr, paired = cold_cells(r)
-        out.append('%-16s %5s %3d | %-21s | %-21s | %-24s | %-18s | %-26s | %-14s | %-15s' % (
-            r['name'], '%dk' % (o['map_cells'] // 1000), r['robots'],
-            trip(o['features_ms'], p.get('features_ms')), trip(o['pair_ms'], p.get('pair_ms'), '%.0f', '%.0f'),
-            '%s / %s = %s%s' % (_f(ca), _f(cb), _f(cr, '%.2fx'), '' if paired or cb is None else '*'),
-            trip(o['warm_ms'], p.get('estimate_ms'), '%.2f', '%.0f'),
-            '%s / %s = %s' % (_f(cp, '%.1f'), _f(own[0], '%.1f'), _f(own[1], '%.2fx')),
-            '%s = %s' % (_f(same[0], '%.1f'), _f(same[1], '%.2fx')),
-            '%s = %s' % (_f(live[0], '%.1f'), _f(live[1], '%.2fx'))))
-    h = '%-16s %3s | %-30s | %-16s | %-38s' % ('input', 'N', 'peak MB (ours: node + workers)', 'placed (ok)',
-                                                'max error: ours | m-explore')
-    out += ['', 'MEMORY AND CORRECTNESS  (placed: robots put in the merged frame besides the reference; '
-            'ok: within %.1f m and %.0f deg of the truth; peak memory: ours = the node\'s process tree '
+        o, m = r['ours'], r.get('mrpt') or {}
+        if m.get('align_s') is not None:
+            mcell = '%.2f (%.2f)' % (m['align_s'], m['wall_s'])
+            ratio = _f(_r(o['cold_ms'] / 1000.0, m['align_s']), '%.2fx')
+        else:
+            mcell, ratio = (m.get('skipped') or '-')[:20], '-'
+        mx = mexplore_cell(r, 'first_map_s', '%.1f s')
+        if 'invalid' not in (r.get('mexplore') or {'invalid': 1}):
+            mx += ' (%.1f CPU s)' % r['mexplore']['cpu_s']
+        out.append('%-16s %5s %3d | %-11s | %-8s | %-11s | %-11s | %-15s | %-14s | %-20s | %-9s | %s' % (
+            r['name'], '%dk' % (o['map_cells'] // 1000), r['robots'], _f(o['features_ms'], '%.1f'),
+            _f(o['pair_ms']), _f(o['cold_ms']), _f(o['warm_ms'], '%.2f'),
+            _f(o['compose_ms'] + o['publish_ms'], '%.1f'), _f(o.get('live_ms'), '%.1f'), mcell, ratio, mx))
+    h = '%-16s %3s | %-24s | %-8s | %-17s | %-30s | %-30s | %s' % (
+        'input', 'N', 'ours MB (node alone)', 'MRPT MB', 'placed (ok)', 'max error: ours', 'MRPT', 'm-explore MB')
+    out += ['', 'MEMORY AND CORRECTNESS  (placed: robots put in the merged frame besides the reference, ours / '
+            'MRPT; ok: within %.1f m and %.0f deg of the truth; peak memory: ours = the node\'s process tree '
             '(bench/ours.py --memory: the node\'s imports, its workers forked as the node forks them, '
             'its work on the maps: cold cycles repeated for 3 s), every physical page counted once, sampled '
-            'about every 40 ms (the node\'s '
-            'process alone in brackets); m-explore: its process\'s peak RSS)' % (TOL_M, TOL_DEG),
-            h, '-' * len(h)]
+            'about every 40 ms (the node\'s process alone in brackets); MRPT: its aligner process\'s peak '
+            'RSS; m-explore: its node\'s peak RSS; m-explore publishes a merged map, not placements)'
+            % (TOL_M, TOL_DEG), h, '-' * len(h)]
     for r in rows:
-        o, p = r['ours'], r['peer']
+        o, m = r['ours'], r.get('mrpt') or {}
 
         def pl(s):
             if s.get('placed') is None:
@@ -131,13 +109,13 @@ def rows_table(rows, peer_note):
             return '%d%s' % (s['placed'], '' if c is None else ' (%d)' % c)
 
         def er(s):
+            if s.get('placed') is None:
+                return (s.get('skipped') or '-')[:30]
             return '%s m %s deg' % (_f(s.get('max_err_m'), '%.3f'), _f(s.get('max_err_deg'), '%.2f'))
-        out.append('%-16s %3d | %-30s | %-16s | %-38s' % (
-            r['name'], r['robots'],
-            '%.0f (%s) / %s = %s' % (o['rss_mb'], _f(o.get('rss_self_mb')), _f(p.get('rss_mb')),
-                                     _f(_r(o['rss_mb'], p.get('rss_mb')), '%.2fx')),
-            '%s / %s' % (pl(o), pl(p)), '%s | %s' % (er(o), er(p) if p.get('placed') is not None
-                                                      else p.get('skipped', '-'))))
+        out.append('%-16s %3d | %-24s | %-8s | %-17s | %-30s | %-30s | %s' % (
+            r['name'], r['robots'], '%.0f (%s)' % (o['rss_mb'], _f(o.get('rss_self_mb'))),
+            _f(m.get('rss_mb')), '%s / %s' % (pl(o), pl(m)), er(o), er(m),
+            mexplore_cell(r, 'rss_mb', '%.0f')))
     return '\n'.join(out)
 
 
@@ -149,40 +127,27 @@ def plot(rows, path):
     sweep = [r for r in rows if r['kind'] == 'count']
     sizes = [r for r in rows if r['kind'] == 'size']
 
-    def series(a, rs, x, side, key, style, label):
-        pts = [(x(r), r[side][key]) for r in rs if r[side].get(key) is not None]
+    def series(a, rs, x, side, key, style, label, scale=1.0):
+        pts = [(x(r), r[side][key] * scale) for r in rs if (r.get(side) or {}).get(key) is not None]
         if pts:
             a.plot(*zip(*pts), style, label=label)
 
     n = lambda r: r['robots']  # noqa: E731
-    for k, style, label in ((0, 'o-', 'ours: estimation, cold'), (1, 'o--', 'm-explore: estimation')):
-        pts = [(n(r), cold_cells(r)[k]) for r in sweep if cold_cells(r)[k] is not None]
-        if pts:
-            ax[0].plot(*zip(*pts), style, label=label)
+    series(ax[0], sweep, n, 'ours', 'cold_ms', 'o-', 'ours: estimation, cold')
     series(ax[0], sweep, n, 'ours', 'warm_ms', 'd-', 'ours: estimation, warm')
-    for k, style, label in ((0, 's-', 'ours: compositing + publishing'),
-                            (1, 's--', 'm-explore: compositing'),
-                            (2, 's:', 'm-explore: compositing at our poses')):
-        pts = [(n(r), compose_cells(r)[k] if k == 0 else compose_cells(r)[k][0]) for r in sweep]
-        pts = [q for q in pts if q[1] is not None]
-        if pts:
-            ax[0].plot(*zip(*pts), style, label=label)
+    series(ax[0], sweep, n, 'mrpt', 'align_s', 'o--', 'MRPT: every pair aligned', 1000.0)
+    series(ax[0], sweep, n, 'mexplore', 'first_map_s', 'o:', 'm-explore: to its first merged /map', 1000.0)
     ax[0].set_xscale('log', base=2)
     ax[0].set_xlabel('robots (intel-sized maps, all overlapping)')
     ax[0].set_title('time against robot count')
 
     cells = lambda r: r['ours']['map_cells']  # noqa: E731
-    for k, style, label in ((0, 'o-', 'ours: estimation (4 robots), cold'),
-                            (1, 'o--', 'm-explore: estimation (4 robots)')):
-        pts = [(cells(r), cold_cells(r)[k]) for r in sizes if cold_cells(r)[k] is not None]
-        if pts:
-            ax[1].plot(*zip(*pts), style, label=label)
+    series(ax[1], sizes, cells, 'ours', 'cold_ms', 'o-', 'ours: estimation (4 robots), cold')
+    series(ax[1], sizes, cells, 'mrpt', 'align_s', 'o--', 'MRPT: every pair aligned (4 robots)', 1000.0)
     series(ax[1], sizes, cells, 'ours', 'pair_ms', '^-', 'ours: one pair')
-    series(ax[1], sizes, cells, 'peer', 'pair_ms', '^--', 'm-explore: one pair')
     series(ax[1], sizes, cells, 'ours', 'features_ms', 'v-', 'ours: features of one map')
-    series(ax[1], sizes, cells, 'peer', 'features_ms', 'v--', 'm-explore: features of one map')
     for r in sizes:
-        ax[1].annotate(r['name'].split()[0], (cells(r), cold_cells(r)[0]), fontsize=8)
+        ax[1].annotate(r['name'].split()[0], (cells(r), r['ours']['cold_ms']), fontsize=8)
     ax[1].set_xscale('log')
     ax[1].set_xlabel('cells per robot map (median)')
     ax[1].set_title('time against map size')
@@ -192,7 +157,8 @@ def plot(rows, path):
 
     series(ax[2], sweep, n, 'ours', 'rss_mb', 'o-', 'ours (node + workers, pages once)')
     series(ax[2], sweep, n, 'ours', 'rss_self_mb', 'd-', 'ours (node process alone)')
-    series(ax[2], sweep, n, 'peer', 'rss_mb', 'o--', 'm-explore')
+    series(ax[2], sweep, n, 'mrpt', 'rss_mb', 'o--', 'MRPT (aligner process)')
+    series(ax[2], sweep, n, 'mexplore', 'rss_mb', 'o:', 'm-explore (node)')
     ax[2].set_xscale('log', base=2)
     ax[2].set_xlabel('robots (intel-sized maps)')
     ax[2].set_ylabel('peak RSS, MB')

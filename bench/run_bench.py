@@ -1,12 +1,14 @@
 #!/usr/bin/env python3
-"""Side-by-side benchmark of multi_map_merge and m-explore's map_merge on the same maps.
+"""Side-by-side benchmark of multi_map_merge, MRPT's grid map aligner and m-explore's map_merge.
 
     python3 bench/run_bench.py [--quick] [--no-peer] [--out bench/results]
 
 (after `make build` with its devel/setup.bash sourced; `make bench` does both and then runs
-bench/live_gap.py). Every configuration runs in fresh processes: ours in bench/ours.py, m-explore
-through ../shared/peers/mexplore/merge_maps_mexplore on the very same map files (bench/peer.py).
-Without ../shared, only our side is measured and the table says the m-explore columns are missing.
+bench/live_gap.py). Every configuration runs in fresh processes: ours in bench/ours.py; MRPT's
+CGridMapAligner through bench/mrpt_merge.py (the project's own driver, bench/mrpt_grid_align.cpp,
+built on first use) on the very same map files; m-explore's map_merge node where it is installed
+(ros-noetic-multirobot-map-merge, bench/peer.py: its time from start to its first merged /map, its
+CPU and peak RSS). Where a peer is not installed its columns say so, never a number.
 Prints the tables, writes results/bench.json (with the machine) and results/bench.png.
 """
 from __future__ import annotations
@@ -14,6 +16,7 @@ from __future__ import annotations
 import argparse
 import itertools
 import json
+import math
 import os
 import subprocess
 import sys
@@ -23,9 +26,9 @@ import time
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 
-import duel  # noqa: E402
 import inputs  # noqa: E402
 import memtree  # noqa: E402
+import mrpt_merge  # noqa: E402
 import peer  # noqa: E402
 import report  # noqa: E402
 
@@ -72,45 +75,62 @@ def run_ours(paths, truth, runs, pairs, root, reps):
     return out
 
 
-def _serve(paths, root, flag):
-    """bench/ours.py serving ``flag`` (--serve: compositing, --serve-estimate: cold cycles) on
-    the maps ``paths``, as a duel.Server."""
-    spec = os.path.join(root, 'serve_%d.json' % len(os.listdir(root)))
-    with open(spec, 'w') as f:
-        json.dump({'paths': paths}, f)
-    return duel.Server([sys.executable, os.path.join(HERE, 'ours.py'), flag, spec])
+def run_mrpt_once(paths, truth, root):
+    """One fresh process of bench/mrpt_merge.py on ``paths`` (reference: the first map, seed 1):
+    its wall time and its tree's CPU (wait4: the front end and the aligner it runs), the
+    aligner's own figures (T.yaml ``driver``: wall, CPU, peak RSS as it reads its own VmHWM), the
+    front end's peak RSS, placements and their errors against ``truth``."""
+    import numpy as np
+    import yaml
+
+    from multi_map_merge.core.transforms import pose_distance, se2
+    out = tempfile.mkdtemp(prefix='mrpt_', dir=root)
+    stems = [os.path.splitext(os.path.basename(p))[0] for p in paths]
+    cmd = [sys.executable, os.path.join(HERE, 'mrpt_merge.py')] + list(paths) + [
+        '-o', os.path.join(out, 'merged.yaml'), '--transforms', os.path.join(out, 'T.yaml'),
+        '--reference', stems[0], '--seed', '1']
+    t0 = time.time()
+    with open(os.path.join(out, 'log.txt'), 'w') as log:
+        p = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT)
+        _, status, ru = os.wait4(p.pid, 0)
+    wall = time.time() - t0
+    if status != 0 or not os.path.exists(os.path.join(out, 'T.yaml')):
+        raise RuntimeError('bench/mrpt_merge.py failed: %s' % open(os.path.join(out, 'log.txt')).read()[-1500:])
+    rep = yaml.safe_load(open(os.path.join(out, 'T.yaml')))
+    errs = {}
+    for k, st in enumerate(stems[1:], 1):
+        v = rep['maps'].get(st) or {}
+        if v.get('merged') and truth is not None:
+            d, ang = pose_distance(se2(v['x'], v['y'], v['yaw']), np.array(truth[k]))
+            errs[st] = (float(d), math.degrees(float(ang)))
+    drv = rep.get('driver') or {}
+    return {'wall_s': wall, 'cpu_s': ru.ru_utime + ru.ru_stime, 'rss_frontend_mb': rep.get('frontend_rss_mb'),
+            'align_s': drv.get('wall_s'), 'align_cpu_s': drv.get('cpu_s'), 'rss_mb': drv.get('rss_mb'),
+            'placed': sum(1 for v in rep['maps'].values() if v.get('merged')),
+            'errors': errs if truth is not None else {},
+            'max_err_m': max([e[0] for e in errs.values()]) if errs else None,
+            'max_err_deg': max([e[1] for e in errs.values()]) if errs else None,
+            'pairs_kept': sum(1 for q in rep['pairs'] if q['kept']), 'pairs': len(rep['pairs'])}
 
 
-def _close(servers):
-    for s in servers:
-        s.close()
+def run_mrpt(paths, truth, runs, root):
+    """Median over ``runs`` fresh processes of each time figure; placements of the first (MRPT
+    is seeded: every run places alike)."""
+    import numpy as np
+    got = [run_mrpt_once(paths, truth, root) for _ in range(runs)]
+    out = dict(got[0])
+    for k in ('wall_s', 'cpu_s', 'align_s', 'align_cpu_s'):
+        if all(g.get(k) is not None for g in got):
+            out[k] = float(np.median([g[k] for g in got]))
+    out['rss_mb'] = max((g['rss_mb'] for g in got if g.get('rss_mb') is not None), default=None)
+    out['runs'] = [{k: g[k] for k in ('wall_s', 'cpu_s', 'align_s', 'placed')} for g in got]
+    return out
 
 
-def compose_duel(paths, pr, reps, own, root):
-    """Compositing in pairs (bench/duel.py): our compose + publish against m-explore's
-    composeGrids() on the maps at our poses ('same_output') and, when ``own``, on its own
-    estimate ('own')."""
-    ours = _serve(paths, root, '--serve')
-    peers = {}
-    try:
-        peers['same_output'] = duel.Server(pr.compose_cmd(paths, reps, poses=ours.ready['poses']), peer.ENV)
-        if own:
-            peers['own'] = duel.Server(pr.compose_cmd(paths, reps), peer.ENV)
-        return duel.duel(ours, peers)
-    finally:
-        _close([ours] + list(peers.values()))
-
-
-def estimate_duel(paths, pr, root):
-    """Cold estimation in pairs (bench/duel.py): one cold cycle of ours (a new merger, workers
-    started) against one estimateTransforms() of m-explore, round after round."""
-    ours = _serve(paths, root, '--serve-estimate')
-    peers = {}
-    try:
-        peers['mexplore'] = duel.Server(pr.estimate_cmd(paths, 1), peer.ENV)
-        return duel.duel(ours, peers, key='estimate_ms')
-    finally:
-        _close([ours] + list(peers.values()))
+def run_mexplore(paths, root):
+    """m-explore's node once on ``paths`` (bench/peer.py run_node, known_init_poses false):
+    {'first_map_s', 'cpu_s', 'rss_mb', ...} or {'invalid': why}."""
+    return peer.run_node(paths, out_dir=tempfile.mkdtemp(prefix='mexplore_', dir=root))
 
 
 def run_soak(out, no_peer):
@@ -126,40 +146,60 @@ def run_soak(out, no_peer):
     return {'text': open(path).read().rstrip(), 'json': os.path.join(out, 'soak.json')}
 
 
+def peers_state(a):
+    """({'mrpt': why or None, 'mexplore': why or None}, note): which peers are measured."""
+    if a.no_peer:
+        return {'mrpt': 'MRPT not measured (--no-peer)', 'mexplore': 'm-explore not measured (--no-peer)'}, ''
+    why = {}
+    ok, w = mrpt_merge.available()
+    if ok:
+        try:
+            print('MRPT: its driver: %s' % mrpt_merge.binary(), flush=True)   # built here, not in a timed run
+        except RuntimeError as e:
+            ok, w = False, 'MRPT\'s driver did not build: %s' % e
+    why['mrpt'] = None if ok else w
+    ok, w = peer.available()
+    why['mexplore'] = None if ok else w
+    note = '; '.join(v for v in why.values() if v)
+    return why, note
+
+
 def memory_only(a):
-    """Each row's peak memory: ours (memory_ours) against m-explore's full run (its peak RSS),
+    """Each row's peak memory: ours (memory_ours) against MRPT's aligner and m-explore's node,
     measured one after the other on the same maps (memory does not depend on the load)."""
-    peer_ok, note = (False, 'm-explore not measured (--no-peer)') if a.no_peer else peer.available()
+    why, note = peers_state(a)
     root = tempfile.mkdtemp(prefix='mmm_bench_')
-    pr = peer.Peer(root) if peer_ok else None
-    h = '%-16s %3s | %-9s %-9s %-9s %-9s | %-12s | %s' % ('input', 'N', 'ours MB', '(node)', 'RSS sum', 'PSS',
-                                                         'm-explore MB', 'ratio (target <= 2)')
+    h = '%-16s %3s | %-9s %-9s %-9s %-9s | %-14s | %s' % ('input', 'N', 'ours MB', '(node)', 'RSS sum', 'PSS',
+                                                         'MRPT MB', 'm-explore MB')
     print('PEAK MEMORY  (ours: the node\'s process tree, pages counted once; RSS sum: each process\'s '
-          'peak RSS summed, the old figure; m-explore: peak RSS of its full run)%s\n%s\n%s' % (
-              '' if peer_ok else '  NOTE: ' + note, h, '-' * len(h)), flush=True)
+          'peak RSS summed, the old figure; MRPT: its aligner process\'s peak RSS; m-explore: its node\'s '
+          'peak RSS)%s\n%s\n%s' % ('' if not note else '  NOTE: ' + note, h, '-' * len(h)), flush=True)
     for name, _kind, gt in inputs.configurations(a.quick):
-        paths, _ = inputs.write_inputs(name.replace(' ', '_'), gt, root)
+        paths, truth = inputs.write_inputs(name.replace(' ', '_'), gt, root)
         n = len(paths)
         cycles = 1 if n > 8 or inputs.median_cells(paths) > 1_500_000 else 3
         m = memory_ours(paths, root, cycles)
         ours = m['unique_mb'] if m['unique_mb'] is not None else m['pss_mb']
-        theirs = pr.run(paths, cycles)[2] if pr is not None and n <= a.peer_max_robots else None
-        print('%-16s %3d | %-9.0f %-9.0f %-9.0f %-9.0f | %-12s | %s' % (
-            name, n, ours, m['self_hwm_mb'], m['hwm_sum_mb'], m['pss_mb'], report._f(theirs, '%.0f'),
-            report._f(report._r(ours, theirs), '%.2fx')), flush=True)
+        mr = run_mrpt_once(paths, truth, root) if why['mrpt'] is None and n <= a.peer_max_robots else {}
+        mx = run_mexplore(paths, root) if why['mexplore'] is None and n <= a.peer_max_robots else \
+            {'invalid': why['mexplore'] or 'skipped above %d robots' % a.peer_max_robots}
+        print('%-16s %3d | %-9.0f %-9.0f %-9.0f %-9.0f | %-14s | %s' % (
+            name, n, ours, m['self_hwm_mb'], m['hwm_sum_mb'], m['pss_mb'],
+            report._f(mr.get('rss_mb')) if mr else (why['mrpt'] or 'skipped')[:14],
+            peer.column(mx, 'rss_mb', '%.0f')), flush=True)
 
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     ap.add_argument('--quick', action='store_true', help='fewer, smaller configurations (about a minute)')
-    ap.add_argument('--no-peer', action='store_true', help='measure our side only')
+    ap.add_argument('--no-peer', action='store_true', help='measure our side only (neither MRPT nor m-explore)')
     ap.add_argument('--peer-max-robots', type=int, default=16,
-                    help='m-explore\'s full run only up to this many robots (it grows fast)')
+                    help='MRPT and m-explore only up to this many robots (both match every pair: they grow fast)')
     ap.add_argument('--no-soak', action='store_true',
                     help='skip the soak (bench/soak.py: the live node over 30 robot minutes at 10x, '
                          'about 3 min, 6 with m-explore); --quick skips it too')
     ap.add_argument('--memory-only', action='store_true',
-                    help='only the memory: the node\'s tree against m-explore\'s full run (about 3 min); '
+                    help='only the memory: the node\'s tree against the peers (about 3 min); '
                          'prints the table, writes nothing')
     ap.add_argument('--out', default=os.path.join(HERE, 'results'))
     a = ap.parse_args()
@@ -167,18 +207,16 @@ def main():
         return memory_only(a)
     os.makedirs(a.out, exist_ok=True)
     t_all = time.time()
-    peer_ok, note = (False, 'm-explore not measured (--no-peer)') if a.no_peer else peer.available()
+    why, note = peers_state(a)
     if note:
         print('NOTE:', note, flush=True)
     root = tempfile.mkdtemp(prefix='mmm_bench_')
-    pr = peer.Peer(root) if peer_ok else None
     rows = []
     for name, kind, gt in inputs.configurations(a.quick):
         paths, truth = inputs.write_inputs(name.replace(' ', '_'), gt, root)
         n = len(paths)
         reps = 3 if n <= 16 else 1    # fresh processes for ours
-        # cycles per process, both sides (m-explore's --reps): x16 takes m-explore ~50 s per
-        # estimation, edmonton x4 ~20 s; one repetition there keeps the run short
+        # cycles per process: one repetition on the big rows keeps the run short
         big = n > 8 or inputs.median_cells(paths) > 1_500_000
         cycles = 1 if big else reps
         pairs = [list(p) for p in itertools.combinations(range(min(n, 3)), 2)]
@@ -187,28 +225,31 @@ def main():
         mem = memory_ours(paths, root, cycles)
         ours.update({'memory': mem, 'rss_self_mb': mem['self_hwm_mb'],
                      'rss_mb': mem['unique_mb'] if mem['unique_mb'] is not None else mem['pss_mb']})
-        t_ours = time.time() - t0
-        p = {}
-        if pr is not None:
-            t0 = time.time()
-            full = n <= a.peer_max_robots
-            p = pr.measure(paths, truth, cycles, [tuple(x) for x in pairs], full=full)
-            p['reps'] = cycles
-            comp = compose_duel(paths, pr, ours['compose_reps'], full, root)
-            short = p.get('estimate_ms') is not None and p['estimate_ms'] < report.PAIR_ESTIMATE_S * 1000.0
-            est = estimate_duel(paths, pr, root) if short else None
-            if not full:
-                p['skipped'] = 'full run skipped above %d robots (m-explore x16 takes ~50 s)' % a.peer_max_robots
-            p['bench_s'] = time.time() - t0
+        ours['bench_s'] = time.time() - t0
+        above = 'skipped above %d robots (every pair matched: %d pairs)' % (a.peer_max_robots, n * (n - 1) // 2)
+        t0 = time.time()
+        if why['mrpt']:
+            mrpt = {'skipped': why['mrpt']}
+        elif n > a.peer_max_robots:
+            mrpt = {'skipped': above}
         else:
-            p = {'skipped': note}
-            comp = est = None
-        ours['bench_s'] = t_ours
+            try:
+                mrpt = run_mrpt(paths, truth, 1 if big else 3, root)
+            except RuntimeError as e:
+                mrpt = {'skipped': 'INVALID: %s' % e}
+        mrpt['bench_s'] = time.time() - t0
+        if why['mexplore']:
+            mx = {'invalid': why['mexplore']}
+        elif n > a.peer_max_robots:
+            mx = {'invalid': above}
+        else:
+            mx = run_mexplore(paths, root)
         rows.append({'name': name, 'kind': kind, 'robots': n, 'reps': reps, 'cycles': cycles, 'pairs': pairs,
-                     'ours': ours, 'peer': p, 'compose': comp, 'estimate': est})
-        print('.. %-16s ours: cold %7.0f ms (%.0f s)   m-explore: %s ms (%s s)' % (
-            name, ours['cold_ms'], t_ours, report._f(p.get('estimate_ms')), report._f(p.get('bench_s'))),
-            flush=True)
+                     'ours': ours, 'mrpt': mrpt, 'mexplore': mx})
+        print('.. %-16s ours: cold %7.0f ms (%.0f s)   MRPT: aligner %s s, whole run %s s (%.0f s)   m-explore: %s'
+              % (name, ours['cold_ms'], ours['bench_s'], report._f(mrpt.get('align_s'), '%.2f'),
+                 report._f(mrpt.get('wall_s'), '%.2f'), mrpt['bench_s'],
+                 peer.column(mx, 'first_map_s', '%.1f s to its first merged /map')), flush=True)
     text = report.rows_table(rows, note)
     print(text)
     soak = None
@@ -219,7 +260,7 @@ def main():
     mach = report.machine()
     print('\nrun_bench took %.0f s on %d cores (%s, %s MB RAM)' % (total, mach['nproc'], mach['cpu_model'],
                                                                   mach['mem_total_mb']))
-    result = {'machine': mach, 'total_s': total, 'peer_measured': peer_ok, 'peer_note': note,
+    result = {'machine': mach, 'total_s': total, 'peers': why, 'peer_note': note,
               'tolerance': {'m': report.TOL_M, 'deg': report.TOL_DEG}, 'rows': rows, 'table': text,
               'soak': soak}
     with open(os.path.join(a.out, 'bench.json'), 'w') as f:

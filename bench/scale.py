@@ -70,12 +70,14 @@ Reported per team size (seconds are wall seconds, errors metres):
                     placed it.
   worst error       at the end of the run, the largest distance between a placed robot's map
                     frame (reference excluded) and the truth, in the reference's frame.
-  m-explore         ``merge_maps_mexplore`` (``bench/peer.py``'s peer, ../shared/peers/mexplore)
-                    once on the maps the merger held at the end: its ``estimateTransforms`` +
-                    ``composeGrids`` cycle, which recomputes every pair each time (so a round
-                    of updates costs it one such cycle); stopped after ``PEER_TIMEOUT`` s and
-                    not run at a size whose predicted cycle (its previous size's, times the
-                    square of the ratio of robots: it matches every pair) is longer.
+  m-explore         its ``map_merge`` node (``bench/peer.py``), where it is installed
+                    (ros-noetic-multirobot-map-merge), on the maps the merger held at the end,
+                    ``known_init_poses`` false: the time from its start to its first merged /map
+                    (it matches every pair each cycle, so a round of updates costs it at least
+                    one such cycle), its CPU and peak RSS; stopped after ``PEER_TIMEOUT`` s and
+                    not run at a size whose predicted time (its previous size's, times the
+                    square of the ratio of robots: it matches every pair) is longer. Where it is
+                    not installed its line says so.
 
 One line per size, in this form (a figure whose condition the run did not create is INVALID
 with why):
@@ -387,11 +389,9 @@ def peer_line(robots: int, p: dict) -> str:
     """The m-explore line of a team size."""
     if not p.get('run'):
         return '  m-explore: not run (%s)' % p['why']
-    err = ('%.3f m' % p['worst_err_m']) if p.get('worst_err_m') is not None else '- (none placed)'
-    return ('  m-explore: %d robots: cycle (estimateTransforms + composeGrids, every pair again: its round of '
-            'updates) %s s, placed %d of %d, worst placement error %s, scales %s' % (
-                robots, fmt_s(p['cycle_s']), p['placed'], robots - 1, err,
-                ('%.2f..%.2f' % (min(p['scales']), max(p['scales']))) if p['scales'] else '-'))
+    return ('  m-explore: %d robots: first merged /map %s s after its node started (known_init_poses false: '
+            'every pair matched), CPU %s s, peak RSS %.0f MB' % (
+                robots, fmt_s(p['first_map_s']), fmt_s(p['cpu_s']), p['rss_mb']))
 
 
 def peer_plan(robots: int, before: Optional[Tuple[int, dict]], limit: float = PEER_TIMEOUT) -> Optional[str]:
@@ -791,33 +791,19 @@ def joiner_deadline(updates, cycles, joiner) -> Optional[float]:
 # ---------------------------------------------------------------- m-explore
 
 def run_peer(paths: List[str], truth: Dict[str, list], timeout: float = PEER_TIMEOUT) -> dict:
-    """m-explore's merge_maps_mexplore once on ``paths`` (robot map files, named rNN.yaml),
-    stopped after ``timeout`` s (bench/peer.py ``Peer.run``): {'run', 'why', 'cycle_s',
-    'wall_s', 'placed', 'worst_err_m', 'scales', 'timed_out'}."""
-    from peer import Peer, TimedOut, available
-
-    from multi_map_merge.core.transforms import pose_distance, se2
+    """m-explore's node once on ``paths`` (robot map files), stopped after ``timeout`` s
+    (bench/peer.py ``run_node``): {'run', 'why', 'first_map_s', 'wall_s' (the same: what
+    :func:`peer_plan` predicts from), 'cpu_s', 'rss_mb', 'timed_out'}. (``truth`` unused: the
+    node publishes a merged map, not placements.)"""
+    from peer import available, run_node
     ok, why = available()
     if not ok:
         return {'run': False, 'why': why}
-    try:
-        timing, rep, _, wall = Peer(tempfile.gettempdir()).run(paths, 1, timeout=timeout)
-    except TimedOut as e:
-        return {'run': False, 'timed_out': True, 'why': str(e)}
-    except RuntimeError as e:
-        return {'run': False, 'why': 'merge_maps_mexplore failed: %s' % e}
-    ref = rep['reference']
-    errs = {}
-    for s, v in rep['maps'].items():
-        if v.get('merged') and s in truth and ref in truth:
-            T_true = np.linalg.inv(np.array(truth[ref])) @ np.array(truth[s])
-            d, a = pose_distance(se2(v['x'], v['y'], v['yaw']), T_true)
-            errs[s] = (float(d), math.degrees(float(a)))
-    return {'run': True, 'cycle_s': (timing['estimate_ms'] + timing['compose_ms']) / 1000.0,
-            'estimate_s': timing['estimate_ms'] / 1000.0, 'wall_s': wall, 'reference': ref,
-            'placed': sum(1 for v in rep['maps'].values() if v.get('merged')),
-            'scales': [round(v['scale'], 4) for v in rep['maps'].values() if v.get('merged')],
-            'errors': errs, 'worst_err_m': max(e[0] for e in errs.values()) if errs else None}
+    res = run_node(paths, timeout=timeout)
+    if 'invalid' in res:
+        return {'run': False, 'timed_out': res['invalid'].startswith('no merged /map'), 'why': res['invalid']}
+    return {'run': True, 'first_map_s': res['first_map_s'], 'wall_s': res['first_map_s'],
+            'cpu_s': res['cpu_s'], 'rss_mb': res['rss_mb']}
 
 
 # ---------------------------------------------------------------- driver

@@ -28,7 +28,7 @@ process of the tree, % of one core over the interval) and threads. Reported: sta
 
 INVALID instead of a verdict when the node had not merged all robots but one by the end of the
 growth phase (then it did not do the work the soak is about), or when the steady phase has
-fewer than 10 samples. With m-explore built, its live node is soaked the same way, and the two
+fewer than 10 samples. Where m-explore's node is installed (bench/peer.py), it is soaked the same way, and the two
 memory figures are compared.
 """
 from __future__ import annotations

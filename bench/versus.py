@@ -1,19 +1,22 @@
 #!/usr/bin/env python3
-"""Cold estimation of this tree against an earlier commit's, both against m-explore, in one run.
+"""Cold estimation of this tree against an earlier commit's, in one run, with m-explore beside.
 
     python3 bench/versus.py [--commit a260f5a] [--rows 'house 4' 'intel 4' ...] [--rounds 11]
 
-Did a change cost speed? A ratio to m-explore taken in another run cannot say: a machine's speed
-drifts between runs, and m-explore's own cycle with it. Here the three run side by side, round after round (as
-bench/duel.py pairs run_bench.py's figures): this tree's cold cycle (bench/ours.py
---serve-estimate), the other commit's (the same script of that commit, checked out into a
-temporary git worktree: commits from a260f5a on have it), and m-explore's
-estimateTransforms(). Each round asks each side for one cycle, in an order that rotates.
+Did a change cost speed? A ratio taken in another run cannot say: a machine's speed drifts
+between runs. Here the two trees run side by side, round after round (as bench/duel.py pairs
+run_bench.py's figures): this tree's cold cycle (bench/ours.py --serve-estimate) and the other
+commit's (the same script of that commit, checked out into a temporary git worktree: commits from
+a260f5a on have it). Each round asks each side for one cycle, in an order that rotates.
 
-Prints per row m-explore's median, each tree's median and its ratio to m-explore (the median
-of the rounds' ratios, as run_bench.py's table), and this tree over the other commit (the
-median of the rounds' ratios: below 1, this tree is faster). Writes results/versus_<commit>.txt.
-Needs ../shared (the maps and m-explore) and git; not part of `make bench` (about 3 min a row).
+m-explore beside them, where its node is installed (ros-noetic-multirobot-map-merge,
+bench/peer.py): the time from its node's start to its first merged /map on the row's maps, once a
+row, after the rounds (not paired: its node cannot be asked for one cycle at a time); elsewhere
+its column says it is not installed.
+
+Prints per row each tree's median, this tree over the other commit (the median of the rounds'
+ratios: below 1, this tree is faster) and m-explore's figure. Writes results/versus_<commit>.txt.
+Needs ../shared (the maps) and git; not part of `make bench` (about 3 min a row).
 """
 from __future__ import annotations
 
@@ -47,15 +50,17 @@ def rounds_of(sides, rounds):
             for label, got in duel.bursts(sides, rounds).items()}
 
 
-def row_line(name, got):
-    """One row of the table from the rounds' figures (:func:`rounds_of`)."""
-    mx = got['mexplore']
-
-    def cell(label):
-        ratio = np.median([x / y for x, y in zip(got[label], mx)])
-        return '%.1f (%.2fx)' % (np.median(got[label]), ratio)
+def row_line(name, got, mexplore):
+    """One row of the table from the rounds' figures (:func:`rounds_of`) and m-explore's cell."""
     change = np.median([x / y for x, y in zip(got['this'], got['other'])])
-    return '%-16s | %12.1f | %-20s | %-20s | %.2fx' % (name, np.median(mx), cell('this'), cell('other'), change)
+    return '%-16s | %-10.1f | %-10.1f | %-9s | %s' % (name, np.median(got['this']), np.median(got['other']),
+                                                      '%.2fx' % change, mexplore)
+
+
+def mexplore_cell(paths, root):
+    """m-explore's time to its first merged /map on ``paths`` (bench/peer.py), or why none."""
+    res = peer.run_node(paths, out_dir=tempfile.mkdtemp(prefix='mexplore_', dir=root))
+    return peer.column(res, 'first_map_s', '%.2f s to its first merged /map')
 
 
 def main():
@@ -66,9 +71,6 @@ def main():
     ap.add_argument('--rounds', type=int, default=duel.ROUNDS)
     ap.add_argument('--out', default=os.path.join(HERE, 'results'))
     a = ap.parse_args()
-    ok, why = peer.available()
-    if not ok:
-        raise SystemExit('versus: %s' % why)
     head = subprocess.run(['git', '-C', REPO, 'rev-parse', '--short', 'HEAD'], capture_output=True,
                           text=True, check=True).stdout.strip()
     # (changes to the code measured, not to bench/results)
@@ -79,11 +81,11 @@ def main():
     other = os.path.join(root, 'other')
     subprocess.run(['git', '-C', REPO, 'worktree', 'add', '--detach', other, a.commit],
                    capture_output=True, text=True, check=True)
-    lines = ['COLD ESTIMATION, side by side in one run (%d rounds a row; medians): this tree (%s) and %s, '
-             'each against m-explore; this / %s = the median of the rounds\' ratios (< 1: this tree is faster)'
-             % (a.rounds, this, a.commit, a.commit),
-             '%-16s | %-12s | %-20s | %-20s | %s' % ('input', 'm-explore ms', 'this ms (ratio)',
-                                                    '%s ms (ratio)' % a.commit, 'this / %s' % a.commit)]
+    lines = ['COLD ESTIMATION, side by side in one run (%d rounds a row; medians): this tree (%s) and %s; '
+             'this / %s = the median of the rounds\' ratios (< 1: this tree is faster); m-explore: its node, '
+             'not paired' % (a.rounds, this, a.commit, a.commit),
+             '%-16s | %-10s | %-10s | %-9s | %s' % ('input', 'this ms', '%s ms' % a.commit, 'this / %s' % a.commit,
+                                                  'm-explore')]
     print('\n'.join(lines), flush=True)
     try:
         for name in a.rows:
@@ -93,14 +95,13 @@ def main():
                 json.dump({'paths': paths}, f)
             sides = [('this', duel.Server([sys.executable, os.path.join(HERE, 'ours.py'), '--serve-estimate', spec])),
                      ('other', duel.Server([sys.executable, os.path.join(other, 'bench', 'ours.py'),
-                                            '--serve-estimate', spec])),
-                     ('mexplore', duel.Server(peer.Peer(root).estimate_cmd(paths, 1), peer.ENV))]
+                                            '--serve-estimate', spec]))]
             try:
                 got = rounds_of(sides, a.rounds)
             finally:
                 for _, srv in sides:
                     srv.close()
-            lines.append(row_line(name, got))
+            lines.append(row_line(name, got, mexplore_cell(paths, root)))
             print(lines[-1], flush=True)
     finally:
         subprocess.run(['git', '-C', REPO, 'worktree', 'remove', '--force', other], capture_output=True)

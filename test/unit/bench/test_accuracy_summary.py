@@ -111,14 +111,14 @@ def test_a_world_without_runs_is_invalid():
 
 
 def test_markdown_names_invalid_rows():
-    conds = [cond('house', 1, mrpt=Invalid('merge_maps_mrpt failed')), cond('house', 2)]
+    conds = [cond('house', 1, mrpt=Invalid('mrpt_merge.py failed')), cond('house', 2)]
     conds[1]['merged_counts'] = {'merged': '3/4'}
     agg = aggregate(conds, ['house'])
     md = markdown(conds, agg, ['house'], {'house': 'AWS small house'})
     assert '### AWS small house' in md
     assert '| seed 1 | seed 2 | mean | worst |' in md
     assert '0.5000 (3/4)' in md
-    assert 'seed 1, MRPT merge: INVALID: merge_maps_mrpt failed' in md
+    assert 'seed 1, MRPT merge: INVALID: mrpt_merge.py failed' in md
     assert md.rstrip().endswith('`' + summary_line(agg['overall']) + '`')
 
 
