@@ -5,12 +5,11 @@ import os
 import subprocess
 import sys
 
-import pytest
-
 REPO = os.path.abspath(os.path.join(os.path.dirname(__file__), '..', '..', '..'))
 sys.path.insert(0, os.path.join(REPO, 'bench'))
 
 import peer  # noqa: E402
+
 
 def test_without_the_package_it_says_not_installed(monkeypatch):
     monkeypatch.setattr(peer, 'PACKAGE', 'multirobot_map_merge_surely_absent')
