@@ -14,13 +14,16 @@ APT_PKGS := python3-rospy python3-tf2-ros python3-nav-msgs python3-rostest pytho
   catkin ros-core-dev g++ python3-opencv python3-numpy python3-scipy python3-yaml \
   python3-pytest python3-matplotlib python3-open3d python3-tf2-msgs \
   rosbash python3-rosparam python3-rosnode python3-rosgraph python3-rospkg python3-roslib python3-rviz \
-  python3-visualization-msgs python3-std-msgs rviz xvfb ros-robot-state-publisher python3-distributed
+  python3-visualization-msgs python3-std-msgs rviz xvfb ros-robot-state-publisher python3-distributed \
+  libmrpt-slam-dev libmrpt-ros1bridge-dev libroscpp-dev libtf2-ros-dev libmessage-filters-dev libnav-msgs-dev \
+  libsensor-msgs-dev librosbag-storage-dev libtf2-dev libtf2-msgs-dev
 # (visualization-msgs, std-msgs: the node's rviz markers; rviz, xvfb: test/ros/rviz_screenshot.test
 # runs rviz with our config under Xvfb; python3-rviz: robots_rviz names each robot's prior tool
 # through rviz's bindings, test/ros/robots_rviz.test; ros-robot-state-publisher: each robot's URDF TF
 # in turtlebot3_multi_slam.launch, live in test/ros/tb3_real_launch.test; python3-distributed:
 # ~dask_scheduler's Dask cluster, optional for users, tested with a real scheduler and workers
-# in test/unit/core/test_cluster.py)
+# in test/unit/core/test_cluster.py; libmrpt-slam-dev, libmrpt-ros1bridge-dev and the roscpp, tf2_ros,
+# message and rosbag_storage headers: the rbpf_slam nodes, each robot's SLAM in the demo and tests)
 # gmapping (the real slam_gmapping node): the system's when ROS finds one (Ubuntu + Noetic:
 # ros-noetic-gmapping through rosdep), else built from ../shared/gmapping (unmodified upstream
 # source) into GMAPPING_WS and overlaid on the workspace, else none (`make gmapping` says so).
@@ -101,10 +104,11 @@ bench: build
 	  && python3 bench/cluster_overhead.py -o bench/results/cluster_overhead.txt
 
 # The paper's experiment as a benchmark (not part of `make test`): 4 Turtlebot3s merged vs 1 alone,
-# every map made by real gmapping (slam_gmapping_replay, every scan), 5 seeds x 2 worlds (the AWS
-# small house, the Intel lab of ../shared/data), against the rigid bound and m-explore's and MRPT's
+# every map made by real gmapping (slam_gmapping_replay, every scan), 5 seeds x 2 worlds (the
+# project's own home, the Intel lab of ../shared/data), against the rigid bound and m-explore's and MRPT's
 # merges; writes bench/results/accuracy.{json,md,txt}. Bags and maps are cached in /tmp/mmm_accuracy.
-# ACCURACY_ARGS=--quick: 1 seed, the house only (accuracy_quick.*); see bench/README.md.
+# ACCURACY_ARGS=--quick: 1 seed, the home only (accuracy_quick.*); --worlds home,house,intel adds the
+# AWS small house of ../shared/data; see bench/README.md.
 ACCURACY_ARGS ?=
 accuracy: build gmapping
 	@$(ROS_ENV) && cd $(CURDIR) && python3 bench/accuracy.py $(ACCURACY_ARGS)

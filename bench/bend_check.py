@@ -1,6 +1,6 @@
 """What bending the maps (core/deform.py, ~bend_maps) can and does gain, on one team's maps.
 
-    python3 bench/bend_check.py DIR TRUTH_FILE [--world WORLD.yaml] [--spacing 2.5]
+    python3 bench/bend_check.py DIR TRUTH_FILE [--world WORLD.yaml] [--spacing 2.5]   (default world: TRUTH_FILE's)
 
 DIR holds the team's final gmapping maps ``tb3_0..3.yaml`` (e.g. ``test/data/house_gmapping_s2``
 or a ``make accuracy`` cache folder ``/tmp/mmm_accuracy/gmapping/house-s2-...``); TRUTH_FILE is
@@ -40,7 +40,6 @@ from multi_map_merge.core.merger import MapMerger  # noqa: E402
 from multi_map_merge.core.transforms import apply, cell_to_metric, inverse, se2  # noqa: E402
 
 TEAM = ['tb3_0', 'tb3_1', 'tb3_2', 'tb3_3']
-HOUSE = os.path.join(os.path.dirname(HERE), 'test', 'data', 'aws_small_house.yaml')
 
 
 def bent_grid(maps, poses, fields, cfg):
@@ -87,12 +86,15 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog='bend_check.py', description=__doc__.split('\n\n')[0])
     ap.add_argument('dir', help='folder with tb3_0..3.yaml')
     ap.add_argument('truth_file', help="the bag generator's truth file (robots' starts)")
-    ap.add_argument('--world', default=HOUSE, help='the ground-truth map (default the AWS house)')
+    ap.add_argument('--world', help="the ground-truth map (default: the truth file's world, as make_robot_bags "
+                                    "wrote it: the home or the AWS house of ../shared/data)")
     ap.add_argument('--spacing', type=float, default=MergeConfig().bend_node_spacing, help='metres between nodes')
     a = ap.parse_args(argv)
-    world = load_map(a.world)
     with open(a.truth_file) as f:
-        starts = {n: se2(*r['start']) for n, r in yaml.safe_load(f)['robots'].items()}
+        truth = yaml.safe_load(f)
+    starts = {n: se2(*r['start']) for n, r in truth['robots'].items()}
+    # the truth file names its world relative to itself
+    world = load_map(a.world or os.path.join(os.path.dirname(os.path.abspath(a.truth_file)), truth['world']))
     maps = {n: load_map(os.path.join(a.dir, n + '.yaml')) for n in TEAM}
     cfg = MergeConfig(reference_robot=TEAM[0], workers=1)
     m = MapMerger(cfg)

@@ -3,6 +3,7 @@
     python3 -m multi_map_merge.lab.demo config BASE.yaml OUT.yaml key=value ...
     python3 -m multi_map_merge.lab.demo report --truth NAME.truth.yaml --record DIR
             [--single single.yaml] [--png OUT.png] [--title TEXT] [--max-distance 0.1]
+            [--world MAP.yaml]
 
 ``config`` writes a copy of the merger's parameter file with a few values changed. ``report``
 scores what a replay produced (``record_replay``'s ``merged.yaml`` and ``record.yaml``) against
@@ -103,11 +104,12 @@ def figure(truth: Grid, panels: Sequence[Tuple[str, Optional[Grid]]],
 # ------------------------------------------------------------------------------ the report
 
 def report(truth_path: str, record_dir: str, single_path: Optional[str], png: Optional[str],
-           title: str = '', max_distance: float = 0.1) -> int:
-    """Print Table 1 and the transform errors; draw the picture. 0 when every robot merged."""
+           title: str = '', max_distance: float = 0.1, world_path: Optional[str] = None) -> int:
+    """Print Table 1 and the transform errors; draw the picture. 0 when every robot merged.
+    ``world_path``: the ground-truth map when not where the truth file says (a copy elsewhere)."""
     from .evaluate import load_truth, score_map, transform_errors
     truth = load_truth(truth_path)
-    gt = load_map(truth['world_path'])
+    gt = load_map(world_path or truth['world_path'])
     starts = {r: se2(*v['start']) for r, v in truth['robots'].items()}
     ref = truth['reference']
     with open(os.path.join(record_dir, 'record.yaml')) as f:
@@ -264,6 +266,7 @@ def _main(argv: Optional[List[str]] = None) -> int:
     r.add_argument('--png')
     r.add_argument('--title', default='')
     r.add_argument('--max-distance', type=float, default=0.1)
+    r.add_argument('--world', help="the ground-truth map, when not at the truth file's world")
     t = sub.add_parser('team-report')
     t.add_argument('--record', required=True)
     t.add_argument('--floor-plan')
@@ -276,7 +279,7 @@ def _main(argv: Optional[List[str]] = None) -> int:
     if a.cmd == 'config':
         write_config(a.base, a.out, {k: yaml.safe_load(v) for k, v in (o.split('=', 1) for o in a.overrides)})
         return 0
-    return report(a.truth, a.record, a.single, a.png, a.title, a.max_distance)
+    return report(a.truth, a.record, a.single, a.png, a.title, a.max_distance, a.world)
 
 
 if __name__ == '__main__':

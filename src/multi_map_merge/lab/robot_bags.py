@@ -1,6 +1,6 @@
-"""``make_robot_bags``: rosbags of several Turtlebot3s mapping a real building, with the truth.
+"""``make_robot_bags``: rosbags of several Turtlebot3s mapping a building, with the truth.
 
-    make_robot_bags -o house.bag [--world MAP.yaml] [--robots 4] [--seed 1]
+    make_robot_bags -o house.bag [--world home|aws-small-house|MAP.yaml] [--robots 4] [--seed 1]
     make_robot_bags -o intel.bag --carmen intel-corrected.log.gz --world intel_gt.yaml
     make_robot_bags -o real.bag --sensors-only --lds02-driver   # scans as ROBOTIS's LDS-02 driver sends them
 
@@ -8,8 +8,12 @@ Writes ``house.bag`` (the team: ``/tb3_N/scan``, ``/tb3_N/odom``, ``/tb3_N/map``
 ``/clock``), with a world map also ``house_single.bag`` (one robot exploring everything alone),
 and ``house.truth.yaml``: the ground-truth map and the pose of every robot's map frame in it,
 read by ``evaluate_map --truth``. Scans are ray cast in the world map (LDS-02), or with
-``--carmen`` the real scans of a CARMEN log cut into the robots' stretches. See
-:mod:`multi_map_merge.lab.simulate` for the models. Exit status 2 names a bad input file.
+``--carmen`` the real scans of a CARMEN log cut into the robots' stretches. The world is by
+default the project's own home (multi_map_merge.lab.home, 119 m2 of free floor), written beside the
+bag as ``home.yaml`` + ``home.pgm`` for the truth file to name; ``aws-small-house`` is the AWS
+small house read in place from ../shared/data (multi_map_merge.lab.worlds); any other value is
+a map_server ``.yaml``. See :mod:`multi_map_merge.lab.simulate` for the models. Exit status 2
+names a bad input file.
 """
 from __future__ import annotations
 
@@ -22,24 +26,13 @@ import numpy as np
 import yaml
 
 from ..cli.args import parser
-from ..core.mapio import MapFileError, load_map
+from ..core.mapio import MapFileError
 from ..core.transforms import wrap_angle
 from .simulate import SimConfig, ld08_driver_scans, read_carmen, simulate_carmen, simulate_world
+from .worlds import AWS_SMALL_HOUSE, HOME, world_map
 
-# the world of ``--world``'s default, in the package (installed with it, see CMakeLists.txt)
-DEFAULT_WORLD = os.path.join('test', 'data', 'aws_small_house.yaml')
-
-
-def package_file(relative: str) -> str:
-    """A file of the multi_map_merge package, found as ROS finds packages (rospkg: the source
-    package in a devel space, its share directory once installed). Raises OSError when the
-    package cannot be found."""
-    import rospkg
-    try:
-        root = rospkg.RosPack().get_path('multi_map_merge')
-    except rospkg.ResourceNotFound as e:
-        raise OSError('package multi_map_merge not found (%s): source its workspace or pass the file' % e) from None
-    return os.path.join(root, relative)
+# ``--world``'s default: the project's own home, drawn by lab/home.py (no file to install)
+DEFAULT_WORLD = HOME
 
 # CARMEN logs: the buildings are bigger and the scans sparser than a Turtlebot3's. Their poses
 # are already a SLAM result on a far better laser (1 cm noise, 80 m) than an LDS-02 (3 m used):
@@ -65,7 +58,10 @@ def main(argv: Optional[List[str]] = None) -> int:
     ap = parser('make_robot_bags', __doc__)
     ap.add_argument('-o', '--output', required=True,
                     help='bag to write (NAME.bag; also NAME_single.bag, NAME.truth.yaml)')
-    ap.add_argument('--world', help='ground-truth map_server .yaml (default: the shipped AWS small house)')
+    ap.add_argument('--world', default=DEFAULT_WORLD,
+                    help='%s (default: the project\'s own home, written beside the bag as home.yaml), %s (the '
+                         'AWS small house in ../shared/data), or a ground-truth map_server .yaml'
+                         % (HOME, AWS_SMALL_HOUSE))
     ap.add_argument('--carmen', help='CARMEN log (.log or .log.gz): real scans instead of ray casting')
     ap.add_argument('--robots', type=int, default=4)
     ap.add_argument('--seed', type=int, default=1)
@@ -88,19 +84,14 @@ def main(argv: Optional[List[str]] = None) -> int:
     if a.robots < 1 or a.robots > 16:
         print('make_robot_bags: --robots must be 1..16', file=sys.stderr)
         return 2
-    try:
-        world_path = os.path.abspath(a.world or package_file(DEFAULT_WORLD))
-    except OSError as e:
-        print('make_robot_bags: %s (--world)' % e, file=sys.stderr)
-        return 2
-    try:
-        world = load_map(world_path)
-    except MapFileError as e:
-        print('make_robot_bags: %s' % e, file=sys.stderr)
-        return 2
-    from ..ros.replay import write_robot_bag  # rosbag: only when writing
     base = a.output[:-4] if a.output.endswith('.bag') else a.output
     os.makedirs(os.path.dirname(os.path.abspath(base)), exist_ok=True)
+    try:
+        world_path, world = world_map(a.world, os.path.dirname(os.path.abspath(base)))
+    except (MapFileError, OSError) as e:
+        print('make_robot_bags: %s (--world)' % e, file=sys.stderr)
+        return 2
+    from ..ros.replay import write_robot_bag  # rosbag: only when writing
     extra = dict(CARMEN_DEFAULTS) if a.carmen else {}
     cfg = SimConfig(robots=a.robots, seed=a.seed, wheel_heading=a.wheel_heading, **extra)
     if a.slam_drift is None:
@@ -120,7 +111,8 @@ def main(argv: Optional[List[str]] = None) -> int:
             return 2
         team = simulate_carmen(log, cfg)
     else:
-        team, lone = simulate_world(world, cfg)
+        # the lone robot drives about three times as long as the team: not simulated unless written
+        team, lone = simulate_world(world, cfg, lone=not a.no_single)
     if a.lds02_driver:
         shape_rng = np.random.default_rng(a.seed + 1000)
         for run in team + ([lone] if lone is not None else []):

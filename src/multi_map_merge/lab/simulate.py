@@ -665,9 +665,10 @@ def plan_team(world: World, cfg: SimConfig) -> Tuple[List[np.ndarray], List[Tupl
     return routes, starts, np.vstack([[sx, sy], planner.xy(np.array(lone))]), lone_start
 
 
-def simulate_world(world_grid: Grid, cfg: SimConfig) -> Tuple[List[RobotRun], RobotRun]:
+def simulate_world(world_grid: Grid, cfg: SimConfig, lone: bool = True) -> Tuple[List[RobotRun], Optional[RobotRun]]:
     """The paper's experiment in a ground-truth map: ``cfg.robots`` robots starting together and
-    exploring different regions, and one robot exploring everything alone."""
+    exploring different regions, and (``lone``, else None) one robot exploring everything alone.
+    The team's runs are the same with or without the lone robot."""
     world = World(world_grid)
     routes, starts, lone_route, lone_start = plan_team(world, cfg)
     seeds = np.random.SeedSequence(cfg.seed).spawn(len(routes) + 1)
@@ -679,10 +680,11 @@ def simulate_world(world_grid: Grid, cfg: SimConfig) -> Tuple[List[RobotRun], Ro
         pad = int(round(end * cfg.odom_rate)) - len(tr)
         tr = np.vstack([tr, np.repeat(tr[-1:], max(pad, 0), axis=0)])
         team.append(run_robot('tb3_%d' % k, world, tr, cfg, np.random.default_rng(seeds[k])))
+    if not lone:
+        return team, None
     lone_true = drive(lone_route, lone_start, cfg)
     lone_true = np.vstack([lone_true, np.repeat(lone_true[-1:], int(cfg.hold * cfg.odom_rate), axis=0)])
-    lone = run_robot('tb3_0', world, lone_true, cfg, np.random.default_rng(seeds[-1]))
-    return team, lone
+    return team, run_robot('tb3_0', world, lone_true, cfg, np.random.default_rng(seeds[-1]))
 
 
 # ------------------------------------------------------------------- real scans: CARMEN logs

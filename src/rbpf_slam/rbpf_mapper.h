@@ -1,0 +1,77 @@
+// One robot's grid SLAM: MRPT's Rao-Blackwellized particle filter (CMetricMapBuilderRBPF) with
+// the optimal proposal (pfOptimalProposal: each particle's pose drawn around a scan match against
+// its own grid, Grisetti, Stachniss and Burgard 2007, the algorithm gmapping implements), fed the
+// way slam_gmapping feeds its filter: gmapping's update rule picks the scans, the odometry since
+// the last processed scan is the action. No ROS here: rbpf_slam (live) and rbpf_slam_replay (a
+// bag, every scan) wrap it.
+#pragma once
+
+#include <mrpt/maps/COccupancyGridMap2D.h>
+#include <mrpt/obs/CObservation2DRangeScan.h>
+#include <mrpt/poses/CPose2D.h>
+#include <mrpt/slam/CMetricMapBuilderRBPF.h>
+
+#include <cstdint>
+#include <memory>
+
+namespace rbpf_slam
+{
+/** The filter's settings, named and meant as slam_gmapping's parameters of the same name. */
+struct Options
+{
+	int particles = 30;	 //!< particles of the filter
+	double delta = 0.05;  //!< m per cell
+	double xmin = -10, ymin = -10, xmax = 10, ymax = 10;  //!< initial map, m (it grows as needed)
+	double maxUrange = 3.0;	 //!< m of each beam inserted into the map
+	double maxRange = 8.0;	//!< m: a beam at or beyond it is no reading
+	double linearUpdate = 1.0;	//!< m travelled (summed scan to scan) before a scan is processed
+	double angularUpdate = 0.5;	 //!< rad turned (summed) before a scan is processed
+	double temporalUpdate = -1.0;  //!< s since the last processed scan that also processes one; < 0: never
+	// odometry error model, as gmapping's: srr translation from translation, srt translation
+	// from rotation, str rotation from translation, stt rotation from rotation
+	double srr = 0.1, srt = 0.2, str = 0.1, stt = 0.2;
+	double sigma = 0.05;  //!< m: the scan likelihood's standard deviation (gmapping's sigma)
+	// a particle's scan match below this goodness (share of the scan's points matched, 0..1)
+	// is not trusted: the odometry places it instead
+	double matchMinGoodness = 0.7;
+	int seed = 0;  //!< the filter's random seed; 0: from the clock
+};
+
+/** A robot's map frame pose (x, y m, yaw rad) and grid, after the scans offered so far. */
+class RbpfMapper
+{
+   public:
+	explicit RbpfMapper(const Options& options);
+
+	/** Offers one scan (stamp in s; odom: the base's odometry pose when the scan was taken;
+	 * scan: in the base frame, its sensorPose set). Returns true when gmapping's update rule
+	 * selected it and the filter processed it (the first scan always). */
+	bool offer(double stamp, const mrpt::poses::CPose2D& odom, const mrpt::obs::CObservation2DRangeScan& scan);
+
+	/** Scans offered (every one reaches the update rule), and those processed. */
+	std::uint64_t received() const { return received_; }
+	std::uint64_t processed() const { return processed_; }
+
+	/** The base's pose in the map frame by the most likely particle, at the last processed scan. */
+	mrpt::poses::CPose2D bestPose() const;
+	/** The odometry pose of the last processed scan (bestPose's counterpart in the odom frame). */
+	const mrpt::poses::CPose2D& lastProcessedOdom() const { return lastOdom_; }
+	/** The most likely particle's grid; nullptr before the first processed scan. */
+	const mrpt::maps::COccupancyGridMap2D* bestGrid() const;
+
+   private:
+	Options options_;
+	std::unique_ptr<mrpt::slam::CMetricMapBuilderRBPF> builder_;
+	mrpt::obs::CActionRobotMovement2D::TMotionModelOptions motion_;
+	std::uint64_t received_ = 0, processed_ = 0;
+	// the update rule's state: odometry of the previous scan, distance and turn summed since
+	// the last processed scan, its stamp and odometry
+	mrpt::poses::CPose2D prevOdom_, lastOdom_;
+	double linearSum_ = 0, angularSum_ = 0, lastStamp_ = 0;
+};
+
+/** An occupancy grid as slam_gmapping publishes one: row-major from the lower-left cell, -1
+ * unknown (never observed), 0 free, 100 occupied (occupancy above one half). */
+void gridToRos(const mrpt::maps::COccupancyGridMap2D& grid, std::int8_t* out);
+
+}  // namespace rbpf_slam

@@ -1,0 +1,292 @@
+// rbpf_slam: one robot's live grid SLAM over MRPT's Rao-Blackwellized particle filter, with
+// slam_gmapping's interface: it subscribes `scan` and reads the odometry from TF
+// (odom_frame -> base_frame at each scan's stamp), and publishes `map` and `map_metadata`
+// (latched), the TF map_frame -> odom_frame, and the service `dynamic_map`. Its private
+// parameters take gmapping's names where they mean the same; a gmapping YAML loads as it is
+// (what has no counterpart here is ignored). Prints `update frame N` for each scan it processes
+// (N counts every scan that reached the update rule), as gmapping does.
+#include "rbpf_mapper.h"
+
+#include <message_filters/subscriber.h>
+#include <mrpt/ros1bridge/laser_scan.h>
+#include <mrpt/ros1bridge/time.h>
+#include <nav_msgs/GetMap.h>
+#include <nav_msgs/MapMetaData.h>
+#include <nav_msgs/OccupancyGrid.h>
+#include <ros/ros.h>
+#include <sensor_msgs/LaserScan.h>
+#include <tf2/LinearMath/Quaternion.h>
+#include <tf2/utils.h>
+#include <tf2_ros/buffer.h>
+#include <tf2_ros/message_filter.h>
+#include <tf2_ros/transform_broadcaster.h>
+#include <tf2_ros/transform_listener.h>
+
+#include <atomic>
+#include <cmath>
+#include <cstdio>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <thread>
+
+namespace
+{
+using mrpt::poses::CPose2D;
+
+/** A private parameter, checked: a value outside what `ok` accepts is logged as one error naming
+ * the parameter and the default used instead. */
+template <typename T, typename Ok>
+T param(ros::NodeHandle& nh, const std::string& name, T fallback, Ok ok, const char* accepts)
+{
+	T value = fallback;
+	if (!nh.getParam(name, value)) return fallback;
+	if (ok(value)) return value;
+	ROS_ERROR_STREAM("~" << name << " = " << value << " is not " << accepts << ": using " << fallback);
+	return fallback;
+}
+
+double paramDouble(ros::NodeHandle& nh, const std::string& name, double fallback, bool positive)
+{
+	return param<double>(
+		nh, name, fallback, [&](double v) { return std::isfinite(v) && (!positive || v > 0); },
+		positive ? "a finite number above 0" : "a finite number");
+}
+
+CPose2D toPose2D(const geometry_msgs::Transform& t)
+{
+	return CPose2D(t.translation.x, t.translation.y, tf2::getYaw(t.rotation));
+}
+
+class RbpfSlamNode
+{
+   public:
+	RbpfSlamNode() : pnh_("~"), tfListener_(tfBuffer_)
+	{
+		baseFrame_ = pnh_.param<std::string>("base_frame", "base_link");
+		odomFrame_ = pnh_.param<std::string>("odom_frame", "odom");
+		mapFrame_ = pnh_.param<std::string>("map_frame", "map");
+		rbpf_slam::Options o;
+		o.particles = param<int>(pnh_, "particles", 30, [](int v) { return v >= 1 && v <= 10000; }, "1..10000");
+		o.delta = paramDouble(pnh_, "delta", 0.05, true);
+		o.maxRange = paramDouble(pnh_, "maxRange", 8.0, true);
+		o.maxUrange = std::min(paramDouble(pnh_, "maxUrange", std::min(o.maxRange, 80.0), true), o.maxRange);
+		o.linearUpdate = paramDouble(pnh_, "linearUpdate", 1.0, false);
+		o.angularUpdate = paramDouble(pnh_, "angularUpdate", 0.5, false);
+		o.temporalUpdate = paramDouble(pnh_, "temporalUpdate", -1.0, false);
+		o.xmin = paramDouble(pnh_, "xmin", -10.0, false);
+		o.ymin = paramDouble(pnh_, "ymin", -10.0, false);
+		o.xmax = paramDouble(pnh_, "xmax", 10.0, false);
+		o.ymax = paramDouble(pnh_, "ymax", 10.0, false);
+		if (o.xmax <= o.xmin || o.ymax <= o.ymin)
+		{
+			ROS_ERROR("~xmin..~xmax, ~ymin..~ymax is an empty map: using -10..10 m for both");
+			o.xmin = o.ymin = -10;
+			o.xmax = o.ymax = 10;
+		}
+		o.srr = paramDouble(pnh_, "srr", 0.1, false);
+		o.srt = paramDouble(pnh_, "srt", 0.2, false);
+		o.str = paramDouble(pnh_, "str", 0.1, false);
+		o.stt = paramDouble(pnh_, "stt", 0.2, false);
+		o.sigma = paramDouble(pnh_, "sigma", 0.05, true);
+		o.matchMinGoodness = paramDouble(pnh_, "match_min_goodness", 0.7, false);
+		o.seed = pnh_.param<int>("seed", 0);
+		maxRange_ = o.maxRange;
+		mapUpdateInterval_ = paramDouble(pnh_, "map_update_interval", 5.0, false);
+		transformPeriod_ = paramDouble(pnh_, "transform_publish_period", 0.05, false);
+		mapper_ = std::make_unique<rbpf_slam::RbpfMapper>(o);
+
+		mapPub_ = nh_.advertise<nav_msgs::OccupancyGrid>("map", 1, true);
+		metaPub_ = nh_.advertise<nav_msgs::MapMetaData>("map_metadata", 1, true);
+		mapService_ = nh_.advertiseService("dynamic_map", &RbpfSlamNode::mapCallback, this);
+		scanSub_ = std::make_unique<message_filters::Subscriber<sensor_msgs::LaserScan>>(nh_, "scan", 5);
+		scanFilter_ = std::make_unique<tf2_ros::MessageFilter<sensor_msgs::LaserScan>>(
+			*scanSub_, tfBuffer_, odomFrame_, 5, nh_);
+		scanFilter_->registerCallback(&RbpfSlamNode::scanCallback, this);
+		ROS_INFO(
+			"rbpf_slam: %d particles, %.3f m cells, maxUrange %.1f m, update every %.2f m / %.2f rad / %.1f s; "
+			"frames %s -> %s -> %s",
+			o.particles, o.delta, o.maxUrange, o.linearUpdate, o.angularUpdate, o.temporalUpdate, mapFrame_.c_str(),
+			odomFrame_.c_str(), baseFrame_.c_str());
+		if (transformPeriod_ > 0) tfThread_ = std::thread([this] { publishTransformLoop(); });
+	}
+
+	~RbpfSlamNode()
+	{
+		stopping_ = true;
+		if (tfThread_.joinable()) tfThread_.join();
+		std::printf(
+			"rbpf_slam: %llu scans received, %llu processed\n",
+			static_cast<unsigned long long>(mapper_->received()),
+			static_cast<unsigned long long>(mapper_->processed()));
+		std::fflush(stdout);
+	}
+
+   private:
+	void scanCallback(const sensor_msgs::LaserScan::ConstPtr& scan)
+	{
+		const auto laser = laserPose(*scan);
+		if (!laser) return;
+		CPose2D odom;
+		try
+		{
+			odom = toPose2D(tfBuffer_.lookupTransform(odomFrame_, baseFrame_, scan->header.stamp).transform);
+		}
+		catch (const tf2::TransformException& e)
+		{
+			ROS_WARN_THROTTLE(5.0, "rbpf_slam: no odometry pose for a scan (%s): scan dropped", e.what());
+			return;
+		}
+		sensor_msgs::LaserScan clipped = *scan;
+		// a reading at or beyond maxRange is no reading (gmapping's maxRange); the map takes each
+		// beam up to maxUrange
+		clipped.range_max = static_cast<float>(std::min<double>(scan->range_max, maxRange_));
+		mrpt::obs::CObservation2DRangeScan obs;
+		if (!mrpt::ros1bridge::fromROS(clipped, *laser, obs))
+		{
+			ROS_WARN_THROTTLE(5.0, "rbpf_slam: a scan could not be converted: dropped");
+			return;
+		}
+		obs.timestamp = mrpt::ros1bridge::fromROS(scan->header.stamp);
+		const std::uint64_t frame = mapper_->received();
+		if (!mapper_->offer(scan->header.stamp.toSec(), odom, obs)) return;
+		std::printf("update frame %llu\n", static_cast<unsigned long long>(frame));
+		std::fflush(stdout);
+
+		// map -> odom: the base's pose in the map, composed with its inverse odometry pose
+		const CPose2D mapToOdom = mapper_->bestPose() + (CPose2D() - mapper_->lastProcessedOdom());
+		{
+			std::lock_guard<std::mutex> lock(tfMutex_);
+			mapToOdom_ = mapToOdom;
+		}
+		if (!gotMap_ || (scan->header.stamp - lastMapUpdate_).toSec() > mapUpdateInterval_)
+		{
+			publishMap();
+			lastMapUpdate_ = scan->header.stamp;
+		}
+	}
+
+	/** The laser's pose on the base (its frame looked up once per frame id); none while TF has none. */
+	const mrpt::poses::CPose3D* laserPose(const sensor_msgs::LaserScan& scan)
+	{
+		auto it = laserPoses_.find(scan.header.frame_id);
+		if (it != laserPoses_.end()) return &it->second;
+		geometry_msgs::TransformStamped t;
+		try
+		{
+			t = tfBuffer_.lookupTransform(baseFrame_, scan.header.frame_id, scan.header.stamp);
+		}
+		catch (const tf2::TransformException& e)
+		{
+			ROS_WARN_THROTTLE(
+				5.0, "rbpf_slam: no TF from %s to the laser's frame %s (%s): scan dropped", baseFrame_.c_str(),
+				scan.header.frame_id.c_str(), e.what());
+			return nullptr;
+		}
+		const auto& q = t.transform.rotation;
+		double roll, pitch, yaw;
+		tf2::Matrix3x3(tf2::Quaternion(q.x, q.y, q.z, q.w)).getRPY(roll, pitch, yaw);
+		mrpt::poses::CPose3D pose(
+			t.transform.translation.x, t.transform.translation.y, t.transform.translation.z, yaw, pitch, roll);
+		ROS_INFO(
+			"rbpf_slam: laser %s at (%.3f, %.3f) m, %.1f deg on %s", scan.header.frame_id.c_str(), pose.x(),
+			pose.y(), yaw * 180 / M_PI, baseFrame_.c_str());
+		return &laserPoses_.emplace(scan.header.frame_id, pose).first->second;
+	}
+
+	void publishMap()
+	{
+		const auto* grid = mapper_->bestGrid();
+		if (!grid) return;
+		nav_msgs::OccupancyGrid msg;
+		msg.header.stamp = ros::Time::now();
+		msg.header.frame_id = mapFrame_;
+		msg.info.map_load_time = msg.header.stamp;
+		msg.info.resolution = grid->getResolution();
+		msg.info.width = grid->getSizeX();
+		msg.info.height = grid->getSizeY();
+		msg.info.origin.position.x = grid->getXMin();
+		msg.info.origin.position.y = grid->getYMin();
+		msg.info.origin.orientation.w = 1.0;
+		msg.data.resize(static_cast<size_t>(msg.info.width) * msg.info.height);
+		rbpf_slam::gridToRos(*grid, msg.data.data());
+		{
+			std::lock_guard<std::mutex> lock(mapMutex_);
+			map_ = msg;
+			gotMap_ = true;
+		}
+		mapPub_.publish(msg);
+		metaPub_.publish(msg.info);
+	}
+
+	bool mapCallback(nav_msgs::GetMap::Request&, nav_msgs::GetMap::Response& res)
+	{
+		std::lock_guard<std::mutex> lock(mapMutex_);
+		if (!gotMap_) return false;
+		res.map = map_;
+		return true;
+	}
+
+	void publishTransformLoop()
+	{
+		ros::WallRate rate(1.0 / transformPeriod_);
+		while (!stopping_ && ros::ok())
+		{
+			geometry_msgs::TransformStamped t;
+			{
+				std::lock_guard<std::mutex> lock(tfMutex_);
+				t.transform.translation.x = mapToOdom_.x();
+				t.transform.translation.y = mapToOdom_.y();
+				tf2::Quaternion q;
+				q.setRPY(0, 0, mapToOdom_.phi());
+				t.transform.rotation.x = q.x();
+				t.transform.rotation.y = q.y();
+				t.transform.rotation.z = q.z();
+				t.transform.rotation.w = q.w();
+			}
+			// stamped ahead by one period, as slam_gmapping does, so lookups at "now" find it;
+			// under simulated time the clock may not have moved since the last one: sent once
+			t.header.stamp = ros::Time::now() + ros::Duration(transformPeriod_);
+			if (t.header.stamp == lastTfStamp_)
+			{
+				rate.sleep();
+				continue;
+			}
+			lastTfStamp_ = t.header.stamp;
+			t.header.frame_id = mapFrame_;
+			t.child_frame_id = odomFrame_;
+			broadcaster_.sendTransform(t);
+			rate.sleep();
+		}
+	}
+
+	ros::NodeHandle nh_, pnh_;
+	tf2_ros::Buffer tfBuffer_;
+	tf2_ros::TransformListener tfListener_;
+	tf2_ros::TransformBroadcaster broadcaster_;
+	std::string baseFrame_, odomFrame_, mapFrame_;
+	double maxRange_ = 8, mapUpdateInterval_ = 5, transformPeriod_ = 0.05;
+	std::unique_ptr<rbpf_slam::RbpfMapper> mapper_;
+	ros::Publisher mapPub_, metaPub_;
+	ros::ServiceServer mapService_;
+	std::unique_ptr<message_filters::Subscriber<sensor_msgs::LaserScan>> scanSub_;
+	std::unique_ptr<tf2_ros::MessageFilter<sensor_msgs::LaserScan>> scanFilter_;
+	std::map<std::string, mrpt::poses::CPose3D> laserPoses_;
+	std::mutex tfMutex_, mapMutex_;
+	CPose2D mapToOdom_;
+	nav_msgs::OccupancyGrid map_;
+	bool gotMap_ = false;
+	ros::Time lastMapUpdate_, lastTfStamp_;
+	std::thread tfThread_;
+	std::atomic<bool> stopping_{false};
+};
+}  // namespace
+
+int main(int argc, char** argv)
+{
+	ros::init(argc, argv, "rbpf_slam");
+	RbpfSlamNode node;
+	ros::spin();
+	return 0;
+}

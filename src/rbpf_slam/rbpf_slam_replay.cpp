@@ -1,0 +1,205 @@
+// rbpf_slam_replay: rbpf_slam over a bag, every scan offered to the filter (none dropped, however
+// long each takes), as gmapping's slam_gmapping_replay:
+//   rbpf_slam_replay --bag_filename BAG [--scan_topic /scan] [--seed N] [--on_done CMD]
+// Its private parameters are rbpf_slam's (gmapping's names). The bag's /tf and /tf_static give the
+// odometry and the laser's pose. At the end it publishes the last map on `map` (latched) and
+// `map_metadata`, runs CMD (e.g. a map saver) while it holds them, and exits; it prints
+// `update frame N` for each scan processed and a last line of scans received and processed.
+#include "rbpf_mapper.h"
+
+#include <mrpt/ros1bridge/laser_scan.h>
+#include <mrpt/ros1bridge/time.h>
+#include <nav_msgs/MapMetaData.h>
+#include <nav_msgs/OccupancyGrid.h>
+#include <ros/ros.h>
+#include <rosbag/bag.h>
+#include <rosbag/view.h>
+#include <sensor_msgs/LaserScan.h>
+#include <tf2/LinearMath/Matrix3x3.h>
+#include <tf2/LinearMath/Quaternion.h>
+#include <tf2/buffer_core.h>
+#include <tf2/utils.h>
+#include <tf2_msgs/TFMessage.h>
+
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <memory>
+#include <string>
+#include <vector>
+
+namespace
+{
+void usage()
+{
+	std::fprintf(
+		stderr,
+		"usage: rbpf_slam_replay --bag_filename BAG [--scan_topic /scan] [--seed N] [--on_done CMD]\n"
+		"  (private ROS parameters as rbpf_slam's: base_frame, odom_frame, map_frame, particles, delta, ...)\n");
+}
+
+double paramDouble(ros::NodeHandle& nh, const std::string& name, double fallback, bool positive)
+{
+	double v = fallback;
+	if (!nh.getParam(name, v)) return fallback;
+	if (std::isfinite(v) && (!positive || v > 0)) return v;
+	ROS_ERROR_STREAM("~" << name << " = " << v << " is not a valid value: using " << fallback);
+	return fallback;
+}
+}  // namespace
+
+int main(int argc, char** argv)
+{
+	ros::init(argc, argv, "rbpf_slam");
+	std::string bagFile, scanTopic = "/scan", onDone;
+	int seed = 0;
+	for (int i = 1; i < argc; ++i)
+	{
+		const std::string a = argv[i];
+		const bool hasValue = i + 1 < argc;
+		if (a == "-h" || a == "--help")
+		{
+			usage();
+			return 0;
+		}
+		if (a == "--bag_filename" && hasValue) bagFile = argv[++i];
+		else if (a == "--scan_topic" && hasValue) scanTopic = argv[++i];
+		else if (a == "--seed" && hasValue) seed = std::atoi(argv[++i]);
+		else if (a == "--on_done" && hasValue) onDone = argv[++i];
+		else
+		{
+			std::fprintf(stderr, "rbpf_slam_replay: unknown or incomplete argument '%s'\n", a.c_str());
+			usage();
+			return 2;
+		}
+	}
+	if (bagFile.empty())
+	{
+		usage();
+		return 2;
+	}
+
+	ros::NodeHandle nh, pnh("~");
+	const std::string baseFrame = pnh.param<std::string>("base_frame", "base_link");
+	const std::string odomFrame = pnh.param<std::string>("odom_frame", "odom");
+	const std::string mapFrame = pnh.param<std::string>("map_frame", "map");
+	rbpf_slam::Options o;
+	o.particles = pnh.param<int>("particles", 30);
+	if (o.particles < 1) o.particles = 30;
+	o.delta = paramDouble(pnh, "delta", 0.05, true);
+	o.maxRange = paramDouble(pnh, "maxRange", 8.0, true);
+	o.maxUrange = std::min(paramDouble(pnh, "maxUrange", std::min(o.maxRange, 80.0), true), o.maxRange);
+	o.linearUpdate = paramDouble(pnh, "linearUpdate", 1.0, false);
+	o.angularUpdate = paramDouble(pnh, "angularUpdate", 0.5, false);
+	o.temporalUpdate = paramDouble(pnh, "temporalUpdate", -1.0, false);
+	o.xmin = paramDouble(pnh, "xmin", -10.0, false);
+	o.ymin = paramDouble(pnh, "ymin", -10.0, false);
+	o.xmax = paramDouble(pnh, "xmax", 10.0, false);
+	o.ymax = paramDouble(pnh, "ymax", 10.0, false);
+	o.srr = paramDouble(pnh, "srr", 0.1, false);
+	o.srt = paramDouble(pnh, "srt", 0.2, false);
+	o.str = paramDouble(pnh, "str", 0.1, false);
+	o.stt = paramDouble(pnh, "stt", 0.2, false);
+	o.sigma = paramDouble(pnh, "sigma", 0.05, true);
+	o.matchMinGoodness = paramDouble(pnh, "match_min_goodness", 0.7, false);
+	o.seed = seed != 0 ? seed : pnh.param<int>("seed", 0);
+
+	rosbag::Bag bag;
+	try
+	{
+		bag.open(bagFile, rosbag::bagmode::Read);
+	}
+	catch (const rosbag::BagException& e)
+	{
+		std::fprintf(stderr, "rbpf_slam_replay: cannot read %s: %s\n", bagFile.c_str(), e.what());
+		return 2;
+	}
+	// every transform of the bag first: a scan's odometry may be recorded just after it
+	rosbag::View whole(bag);
+	const ros::Duration span = whole.getEndTime() - whole.getBeginTime();
+	tf2::BufferCore tf(span + ros::Duration(60.0));
+	for (const auto& m : rosbag::View(bag, rosbag::TopicQuery(std::vector<std::string>{"/tf", "/tf_static"})))
+	{
+		const auto msg = m.instantiate<tf2_msgs::TFMessage>();
+		if (!msg) continue;
+		const bool isStatic = m.getTopic() == "/tf_static";
+		for (const auto& t : msg->transforms) tf.setTransform(t, "bag", isStatic);
+	}
+
+	rbpf_slam::RbpfMapper mapper(o);
+	std::unique_ptr<mrpt::poses::CPose3D> laser;
+	std::uint64_t noOdom = 0;
+	for (const auto& m : rosbag::View(bag, rosbag::TopicQuery(scanTopic)))
+	{
+		const auto scan = m.instantiate<sensor_msgs::LaserScan>();
+		if (!scan) continue;
+		try
+		{
+			if (!laser)
+			{
+				const auto t = tf.lookupTransform(baseFrame, scan->header.frame_id, scan->header.stamp).transform;
+				double roll, pitch, yaw;
+				tf2::Matrix3x3(tf2::Quaternion(t.rotation.x, t.rotation.y, t.rotation.z, t.rotation.w))
+					.getRPY(roll, pitch, yaw);
+				laser = std::make_unique<mrpt::poses::CPose3D>(
+					t.translation.x, t.translation.y, t.translation.z, yaw, pitch, roll);
+			}
+			const auto t = tf.lookupTransform(odomFrame, baseFrame, scan->header.stamp).transform;
+			const mrpt::poses::CPose2D odom(t.translation.x, t.translation.y, tf2::getYaw(t.rotation));
+			sensor_msgs::LaserScan clipped = *scan;
+			clipped.range_max = static_cast<float>(std::min<double>(scan->range_max, o.maxRange));
+			mrpt::obs::CObservation2DRangeScan obs;
+			if (!mrpt::ros1bridge::fromROS(clipped, *laser, obs)) continue;
+			obs.timestamp = mrpt::ros1bridge::fromROS(scan->header.stamp);
+			const std::uint64_t frame = mapper.received();
+			if (mapper.offer(scan->header.stamp.toSec(), odom, obs))
+			{
+				std::printf("update frame %llu\n", static_cast<unsigned long long>(frame));
+				std::fflush(stdout);
+			}
+		}
+		catch (const tf2::TransformException& e)
+		{
+			if (noOdom++ == 0)
+				std::fprintf(stderr, "rbpf_slam_replay: a scan without its TF (%s): skipped\n", e.what());
+		}
+	}
+	bag.close();
+	std::printf(
+		"rbpf_slam_replay: %llu scans received, %llu processed, %llu without TF\n",
+		static_cast<unsigned long long>(mapper.received()), static_cast<unsigned long long>(mapper.processed()),
+		static_cast<unsigned long long>(noOdom));
+	std::fflush(stdout);
+
+	const auto* grid = mapper.bestGrid();
+	if (!grid)
+	{
+		std::fprintf(stderr, "rbpf_slam_replay: no scan processed: no map\n");
+		return 1;
+	}
+	nav_msgs::OccupancyGrid map;
+	map.header.stamp = ros::Time::now();
+	map.header.frame_id = mapFrame;
+	map.info.map_load_time = map.header.stamp;
+	map.info.resolution = grid->getResolution();
+	map.info.width = grid->getSizeX();
+	map.info.height = grid->getSizeY();
+	map.info.origin.position.x = grid->getXMin();
+	map.info.origin.position.y = grid->getYMin();
+	map.info.origin.orientation.w = 1.0;
+	map.data.resize(static_cast<size_t>(map.info.width) * map.info.height);
+	rbpf_slam::gridToRos(*grid, map.data.data());
+	ros::Publisher mapPub = nh.advertise<nav_msgs::OccupancyGrid>("map", 1, true);
+	ros::Publisher metaPub = nh.advertise<nav_msgs::MapMetaData>("map_metadata", 1, true);
+	mapPub.publish(map);
+	metaPub.publish(map.info);
+	int rc = 0;
+	if (!onDone.empty())
+	{
+		ros::AsyncSpinner spinner(1);
+		spinner.start();
+		rc = std::system(onDone.c_str());
+		if (rc != 0) std::fprintf(stderr, "rbpf_slam_replay: --on_done exited %d\n", rc);
+	}
+	return rc == 0 ? 0 : 1;
+}
