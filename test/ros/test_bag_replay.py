@@ -20,6 +20,7 @@ from rostest_helpers import skip_without_gmapping, stop_launch
 from multi_map_merge.core.mapio import load_map
 from multi_map_merge.core.transforms import se2
 from multi_map_merge.lab.evaluate import load_truth, score_map, transform_errors
+from multi_map_merge.lab.scans_processed import load_rule, report
 from multi_map_merge.ros.replay import record_replay
 from multi_map_merge.ros.tools import init_node
 
@@ -56,10 +57,12 @@ class TestBagReplay(unittest.TestCase):
         self.assertEqual(r.returncode, 0, r.stderr)
         self.assertTrue(os.path.getsize(bag) > 1_000_000)
         init_node('test_bag_replay')
+        logs = os.path.join(tmp, 'logs')    # the live SLAM's "update frame N" lines, counted below
         launch = subprocess.Popen(['roslaunch', 'multi_map_merge', 'bag_replay.launch', 'bag:=' + bag,
                                    'slam:=' + slam, 'rviz:=false', 'rate:=%g' % limit['rate'],
                                    'robot_count:=%d' % len(ROBOTS), 'output:=log'],
-                                  stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+                                  stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
+                                  env=dict(os.environ, ROS_LOG_DIR=logs))
         try:
             rec = record_replay(ROBOTS, period=0.5, idle=4.0, timeout=200.0)
         finally:
@@ -84,6 +87,10 @@ class TestBagReplay(unittest.TestCase):
             slam, s.fitness, s.inlier_rmse,
             ', '.join('%s %.3f m %.2f deg' % (k, *e) for k, e in sorted(errors.items()))))
         if slam != 'recorded':
+            # did each robot's SLAM keep up with the bag (printed: a failure below says whether
+            # the maps were bad or the machine too slow for the rate)
+            report(bag, logs, ROBOTS, load_rule(os.path.join(pkg, 'config', 'gmapping_lds02.yaml')),
+                   label='bag replay, slam %s: ' % slam)
             # each robot's own live SLAM map aligned alone to the ground truth: how good the
             # merge's inputs were, and how far the merge is from each map's own best fit
             own = {}
