@@ -34,6 +34,7 @@ from sensor_msgs.msg import LaserScan
 
 from multi_map_merge.core.transforms import se2
 from multi_map_merge.lab.evaluate import load_truth, transform_errors
+from multi_map_merge.lab.scans_processed import load_rule, report
 from multi_map_merge.ros.replay import record_replay
 from multi_map_merge.ros.tools import init_node
 
@@ -112,7 +113,9 @@ def run_tb3_launch(test, launch_args=(), launch_log=None, before_stop=None, env=
     launch = subprocess.Popen(['roslaunch', 'multi_map_merge', 'turtlebot3_multi_slam.launch',
                                'robot_count:=2', 'rviz:=false', 'urdf_file:=' + urdf, 'output:=log', 'slam:=' + SLAM]
                               + list(launch_args), stdout=out, stderr=subprocess.STDOUT,
-                              start_new_session=True, env=env)
+                              start_new_session=True,
+                              # the SLAM's "update frame N" lines, counted below (slam_on:=base)
+                              env=dict(env or os.environ, ROS_LOG_DIR=os.path.join(tmp, 'logs')))
     play = subprocess.Popen(['rosbag', 'play', '--clock', '-r', '1.5', '-d', '3', bag],
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     base_in_map, laser, merged_at = {}, {}, {}
@@ -140,6 +143,10 @@ def run_tb3_launch(test, launch_args=(), launch_log=None, before_stop=None, env=
         test.assertAlmostEqual(got.x, -0.032, places=6, msg=name)
         test.assertAlmostEqual(got.y, 0.0, places=6, msg=name)
         test.assertAlmostEqual(got.z, 0.182, places=6, msg=name)
+    # did each robot's SLAM keep up with the bag (printed: says whether a failure below is the
+    # maps' or the machine's, too slow for the rate)
+    report(bag, os.path.join(tmp, 'logs'), ROBOTS, load_rule(os.path.join(pkg, 'config', 'gmapping_lds02.yaml')),
+           label='turtlebot3_multi_slam.launch slam:=%s: ' % SLAM)
     test.assertIsNotNone(rec['clock'], 'no /clock: the bag did not play')
     truth = load_truth(bag[:-4].replace('robots', 'house2') + '.truth.yaml')
     est = {}
