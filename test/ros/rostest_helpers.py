@@ -57,7 +57,7 @@ def skip_without_gmapping(test: unittest.TestCase) -> None:
         rospkg.RosPack().get_path('gmapping')
     except rospkg.ResourceNotFound:
         test.skipTest('no gmapping: ROS has no package gmapping (Ubuntu: ros-noetic-gmapping; '
-                      'Debian: make gmapping builds it from ../shared/gmapping)')
+                      'slam:=rbpf runs this package\'s rbpf_slam instead)')
 
 
 def stop_launch(proc: subprocess.Popen, timeout: float = 20.0) -> None:

@@ -1,8 +1,9 @@
 #!/usr/bin/env python3
 """rostest: a generated robots' bag through `roslaunch multi_map_merge bag_replay.launch`
 (real rosbag play --clock, /use_sim_time, the node, tf2), scored against the bag's truth.
-Argument ``--slam``: ``recorded`` (the bag's maps, the default) or ``gmapping`` (one live, real
-slam_gmapping per robot makes the maps from the bag's scans; skipped where ROS has no gmapping)."""
+Argument ``--slam``: ``recorded`` (the bag's maps, the default), ``rbpf`` (one live rbpf_slam per
+robot, this package's RBPF SLAM, makes the maps from the bag's scans: bag_replay_gmapping.test) or
+``gmapping`` (the same with a real slam_gmapping; skipped where ROS has no gmapping)."""
 import math
 import os
 import subprocess
@@ -19,6 +20,7 @@ from rostest_helpers import skip_without_gmapping, stop_launch
 from multi_map_merge.core.mapio import load_map
 from multi_map_merge.core.transforms import se2
 from multi_map_merge.lab.evaluate import load_truth, score_map, transform_errors
+from multi_map_merge.lab.scans_processed import load_rule, report
 from multi_map_merge.ros.replay import record_replay
 from multi_map_merge.ros.tools import init_node
 
@@ -34,6 +36,7 @@ LIMITS = {
     # in the wrong place (metres, or a turn) still fails
     'gmapping': dict(metres=0.25, degrees=6.0, fitness=0.55, rmse=0.07, end=0.5, rate=1.5),
 }
+LIMITS['rbpf'] = LIMITS['gmapping']     # gmapping's particle filter over MRPT: held to gmapping's limits
 
 
 class TestBagReplay(unittest.TestCase):
@@ -49,15 +52,17 @@ class TestBagReplay(unittest.TestCase):
         bag = os.path.join(tmp, 'house3.bag')
         r = subprocess.run([sys.executable, os.path.join(pkg, 'scripts', 'make_robot_bags'), '-o', bag,
                             '--robots', '3', '--seed', '2', '--no-single']
-                           # live gmapping gets only what the robots' sensors record
-                           + (['--sensors-only'] if slam == 'gmapping' else []), capture_output=True, text=True)
+                           # live SLAM gets only what the robots' sensors record
+                           + (['--sensors-only'] if slam != 'recorded' else []), capture_output=True, text=True)
         self.assertEqual(r.returncode, 0, r.stderr)
         self.assertTrue(os.path.getsize(bag) > 1_000_000)
         init_node('test_bag_replay')
+        logs = os.path.join(tmp, 'logs')    # the live SLAM's "update frame N" lines, counted below
         launch = subprocess.Popen(['roslaunch', 'multi_map_merge', 'bag_replay.launch', 'bag:=' + bag,
                                    'slam:=' + slam, 'rviz:=false', 'rate:=%g' % limit['rate'],
                                    'robot_count:=%d' % len(ROBOTS), 'output:=log'],
-                                  stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+                                  stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
+                                  env=dict(os.environ, ROS_LOG_DIR=logs))
         try:
             rec = record_replay(ROBOTS, period=0.5, idle=4.0, timeout=200.0)
         finally:
@@ -81,16 +86,20 @@ class TestBagReplay(unittest.TestCase):
         print('bag replay, slam %s: Fitness %.4f, inlier RMSE %.3f m, transform errors %s' % (
             slam, s.fitness, s.inlier_rmse,
             ', '.join('%s %.3f m %.2f deg' % (k, *e) for k, e in sorted(errors.items()))))
-        if slam == 'gmapping':
-            # each robot's own gmapping map aligned alone to the ground truth: how good the
+        if slam != 'recorded':
+            # did each robot's SLAM keep up with the bag (printed: a failure below says whether
+            # the maps were bad or the machine too slow for the rate)
+            report(bag, logs, ROBOTS, load_rule(os.path.join(pkg, 'config', 'gmapping_lds02.yaml')),
+                   label='bag replay, slam %s: ' % slam)
+            # each robot's own live SLAM map aligned alone to the ground truth: how good the
             # merge's inputs were, and how far the merge is from each map's own best fit
             own = {}
             for name in ROBOTS:
-                self.assertIn(name, rec['robot_maps'], '%s: no /%s/map from gmapping' % (name, name))
+                self.assertIn(name, rec['robot_maps'], '%s: no /%s/map from %s' % (name, name, slam))
                 own[name] = score_map(rec['robot_maps'][name], load_map(truth['world_path']), starts[name])
             fit_errors = transform_errors(est, {k: v.T for k, v in own.items()}, 'tb3_0')
-            print('bag replay, slam gmapping: robots\' own maps Fitness %s; errors against each map\'s best '
-                  'fit: %s' % (', '.join('%.4f' % own[k].fitness for k in ROBOTS),
+            print('bag replay, slam %s: robots\' own maps Fitness %s; errors against each map\'s best '
+                  'fit: %s' % (slam, ', '.join('%.4f' % own[k].fitness for k in ROBOTS),
                                ', '.join('%s %.3f m %.2f deg' % (k, *e) for k, e in sorted(fit_errors.items()))))
         self.assertGreater(s.fitness, limit['fitness'])
         for name, (d, a) in errors.items():

@@ -3,7 +3,7 @@
 map") runs it, live.
 
 Two Turtlebot3s' LDS-02 sensors (test_tb3_real_launch's bag) play through
-``turtlebot3_multi_slam.launch`` with real gmapping and the merger; move_base for tb3_1 starts
+``turtlebot3_multi_slam.launch slam:=rbpf`` (test_tb3_real_launch's SLAM) and the merger; move_base for tb3_1 starts
 with them (move_base_merged.launch: ROBOTIS's turtlebot3_navigation YAMLs, then the README's
 lines), before tb3_1 is merged, so it waits for ``map -> tb3_1/base_footprint``. While the bag
 plays the test times tb3_1's first merge and the first non-empty plan of ``move_base/make_plan``
@@ -20,7 +20,7 @@ that move_base's timers, gmapping's and the merger's keep running. Then it asser
 * a goal sent to the ``move_base`` action server is accepted and the controller publishes
   ``/tb3_1/cmd_vel``.
 
-Skips where ROS has no move_base, turtlebot3_navigation or gmapping."""
+Skips where ROS has no move_base or turtlebot3_navigation (and, with SLAM gmapping, no gmapping)."""
 import math
 import os
 import subprocess
@@ -40,7 +40,7 @@ from nav_msgs.srv import GetPlan
 from rosgraph_msgs.msg import Clock
 from rospy.numpy_msg import numpy_msg
 from rostest_helpers import lookup, shared_file, stop_launch
-from test_tb3_real_launch import two_robot_lds02_bag
+from test_tb3_real_launch import SLAM, two_robot_lds02_bag
 from tf2_msgs.msg import TFMessage
 
 from multi_map_merge.core.transforms import apply, cell_to_metric, inverse, xyyaw
@@ -180,9 +180,11 @@ class Hold(threading.Thread):
 
 def requirements(test):
     rp = rospkg.RosPack()
-    for pkg, why in (('gmapping', 'Ubuntu: ros-noetic-gmapping; Debian: make gmapping'),
-                     ('move_base', 'Ubuntu: ros-noetic-navigation; Debian has none'),
-                     ('turtlebot3_navigation', "Ubuntu: ros-noetic-turtlebot3-navigation (ROBOTIS's parameter files)")):
+    needs = [('move_base', 'Ubuntu: ros-noetic-navigation; Debian has none'),
+             ('turtlebot3_navigation', "Ubuntu: ros-noetic-turtlebot3-navigation (ROBOTIS's parameter files)")]
+    if SLAM == 'gmapping':
+        needs.insert(0, ('gmapping', 'Ubuntu: ros-noetic-gmapping'))
+    for pkg, why in needs:
         try:
             rp.get_path(pkg)
         except rospkg.ResourceNotFound:
@@ -208,7 +210,7 @@ class TestMoveBaseMerged(unittest.TestCase):
         hold = Hold(watch)
         try:
             launches = (['multi_map_merge', 'turtlebot3_multi_slam.launch', 'robot_count:=2', 'rviz:=false',
-                         'urdf_file:=' + urdf, 'output:=log'],
+                         'urdf_file:=' + urdf, 'output:=log', 'slam:=' + SLAM],
                         [os.path.join(pkg, 'test', 'ros', 'move_base_merged.launch'), 'param_dir:=' + params,
                          'robot:=' + ROBOT])
             for i, args in enumerate(launches):

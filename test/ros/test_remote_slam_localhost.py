@@ -8,12 +8,12 @@ The user must not be the one running the test: roslaunch starts a <machine> whos
 this machine's and whose user is the launching user locally, without ssh. roslaunch's ssh client
 (paramiko) reads ``$HOME/.ssh`` (config, known_hosts) as on a base station.
 
-The same run as tb3_real_launch.test (two Turtlebot3s' LDS-02 scans, real gmapping), with
+The same run as tb3_real_launch.test (two Turtlebot3s' LDS-02 scans, slam:=rbpf), with
 ``slam_on:=robot``, both robots at 127.0.0.1, ``robot_user``, ``robot_ssh_port`` and the
 workspace's own env loader (the launch's default, ``<devel>/lib/multi_map_merge/env_loader``,
 which finds ``ROS_IP`` itself; nothing else sets it). Asserts, besides everything tb3_real_launch
 asserts (both mapped and merged within 0.25 m and 6 degrees): roslaunch started its child through
-ssh; each robot's gmapping, robot_state_publisher and scan relay ran as the ssh user under sshd,
+ssh; each robot's SLAM, robot_state_publisher and scan relay ran as the ssh user under sshd,
 with the ``ROS_IP`` the loader set, announcing that address; all of them are gone once the launch
 is stopped. Run under ``.ci/unresolvable_host`` (``.ci/unresolvable_host tools/ssh_robot_localhost
 test``), the host name resolves nowhere, so this shows the loader needs no name resolution."""
@@ -30,9 +30,10 @@ from xmlrpc.client import ServerProxy
 import rosgraph
 import roslaunch.core
 import rostest
-from test_tb3_real_launch import ROBOTS, run_tb3_launch
+from test_tb3_real_launch import ROBOTS, SLAM, run_tb3_launch
 
-NODES = ['slam_gmapping', 'robot_state_publisher', 'scan_frame_relay']
+# the SLAM node slam_robot.launch starts for SLAM, then the others of tb3_robot_base.launch
+NODES = [{'gmapping': 'slam_gmapping', 'rbpf': 'rbpf_slam'}[SLAM], 'robot_state_publisher', 'scan_frame_relay']
 
 
 def ssh_target():

@@ -125,3 +125,53 @@ def halves_merged(intel):
     c = cut_piece(intel, (r0, r0 + 40, c0, c0 + 40), (1, 1, 1.0))[0]
     # (pieces of one ground truth do not drift from their frames' origins)
     return merged({'a': a, 'b': b, 'c': c}, reference_robot='a', map_drift=0.0, map_drift_yaw=0.0)
+
+
+# ---------------------------------------------------------------- gmapping for a parse of its launch path
+GMAPPING_STAND_IN_XML = """<?xml version="1.0"?>
+<package format="2">
+  <name>gmapping</name>
+  <version>0.0.0</version>
+  <description>Stand-in of the unit tests: a package.xml named gmapping and nothing else, so that
+    roslaunch parses slam:=gmapping where ROS has no gmapping. No node can start from it.</description>
+  <maintainer email="nobody@example.com">nobody</maintainer>
+  <license>BSD</license>
+</package>
+"""
+
+
+def reset_roslaunch_rospack():
+    """roslaunch's $(find) and $(eval find()) keep one RosPack (its crawl of ROS_PACKAGE_PATH) for
+    the process: forget it, so the next parse sees the ROS_PACKAGE_PATH of now."""
+    import roslaunch.substitution_args
+    roslaunch.substitution_args._rospack = None
+
+
+@pytest.fixture(scope='module')
+def gmapping_stand_in(tmp_path_factory):
+    """Lets the module parse the launch files' slam:=gmapping path (launch/includes/slam_robot.launch
+    stops roslaunch where ROS has no package gmapping). Where ROS has gmapping: nothing to do,
+    yields None. Elsewhere (Debian): puts a stand-in package gmapping (a package.xml alone) first on
+    ROS_PACKAGE_PATH of this process and of the roslaunch it runs, for the module's tests only, and
+    yields its directory. Parse-only: a test must treat that directory as no gmapping."""
+    import rospkg
+    try:
+        rospkg.RosPack().get_path('gmapping')
+        yield None
+        return
+    except rospkg.ResourceNotFound:
+        pass
+    root = tmp_path_factory.mktemp('stand_in')
+    (root / 'gmapping').mkdir()
+    (root / 'gmapping' / 'package.xml').write_text(GMAPPING_STAND_IN_XML)
+    old = os.environ.get('ROS_PACKAGE_PATH')
+    os.environ['ROS_PACKAGE_PATH'] = os.pathsep.join([str(root)] + ([old] if old else []))
+    reset_roslaunch_rospack()
+    try:
+        yield str(root / 'gmapping')
+    finally:
+        if old is None:
+            del os.environ['ROS_PACKAGE_PATH']
+        else:
+            os.environ['ROS_PACKAGE_PATH'] = old
+        reset_roslaunch_rospack()

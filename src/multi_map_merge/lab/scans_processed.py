@@ -1,24 +1,26 @@
-"""Did every robot's gmapping keep up? Scans received and processed, per robot, after a replay.
+"""Did every robot's SLAM keep up? Scans received and processed, per robot, after a replay.
 
     python3 -m multi_map_merge.lab.scans_processed --bag B.bag --logs LOGDIR [--robots tb3_0 ...]
             [--config config/gmapping_lds02.yaml] [--min-share 0.9]
             [--scan-topic /{robot}/scan] [--odom-topic /{robot}/odom]
 
-A live ``slam_gmapping`` takes its scans from a subscriber queue of 5 and drops the oldest while
-it is busy; on a robot it keeps up and processes every scan its update rule asks for (after
+A live ``slam_gmapping`` (or this package's ``rbpf_slam``, launched with slam:=rbpf: the same
+update rule, parameters and output) takes its scans from a subscriber queue of 5 and drops the
+oldest while it is busy; on a robot it keeps up and processes every scan its update rule asks for (after
 ``linearUpdate`` m, ``angularUpdate`` rad or ``temporalUpdate`` s since the last one). A replay
-that plays a bag faster than the machine's gmappings can follow makes them process fewer, and
+that plays a bag faster than the machine's SLAM nodes can follow makes them process fewer, and
 their maps are then not what a robot's would be. This tool counts, per robot:
 
 - ``scans``: the robot's scans in the bag;
-- ``received``: the scans that reached its gmapping's update rule (the others were dropped
+- ``received``: the scans that reached its SLAM's update rule (the others were dropped
   from its queue while it was busy);
-- ``processed``: the scans its gmapping processed (one ``update frame N`` line each on its
-  stdout, which roslaunch's ``output="log"`` writes to ``LOGDIR/**/<ns>-slam_gmapping-*-stdout.log``);
+- ``processed``: the scans its SLAM processed (one ``update frame N`` line each on its
+  stdout, which roslaunch's ``output="log"`` writes to ``LOGDIR/**/<ns>-slam_gmapping-*-stdout.log``,
+  or ``<ns>-rbpf_slam-*-stdout.log`` for rbpf_slam);
 - ``expected``: the scans gmapping's update rule selects from the bag's own odometry
   (:func:`gmapping_updates`): what it processes when it drops none.
 
-Exit status 1 when a robot's gmapping processed under ``--min-share`` of its expected scans.
+Exit status 1 when a robot's SLAM processed under ``--min-share`` of its expected scans.
 """
 from __future__ import annotations
 
@@ -34,6 +36,8 @@ import numpy as np
 import yaml
 
 UPDATE_LINE = re.compile(r'^update frame (\d+)\s*$', re.M)
+# the SLAM nodes that print one such line per scan processed, by node name (launch/includes/slam_robot.launch)
+SLAM_NODES = ('slam_gmapping', 'rbpf_slam')
 
 
 def gmapping_updates(t: np.ndarray, odom: np.ndarray, linear: float, angular: float,
@@ -62,10 +66,12 @@ def gmapping_updates(t: np.ndarray, odom: np.ndarray, linear: float, angular: fl
 
 def count_updates(log_dir: str, robot: str) -> Optional[Tuple[int, int]]:
     """(processed, received): the ``update frame N`` lines in the stdout log of ``robot``'s
-    slam_gmapping under ``log_dir`` (any depth; roslaunch's ``latest`` link is not counted twice),
-    and the scans that reached gmapping's update rule (N counts every one of them, processed or
-    not: the largest N + 1). None when there is no such log."""
-    paths = glob.glob(os.path.join(log_dir, '**', '%s-slam_gmapping-*-stdout.log' % robot), recursive=True)
+    slam_gmapping or rbpf_slam under ``log_dir`` (any depth; roslaunch's ``latest`` link is not
+    counted twice), and the scans that reached the update rule (N counts every one of them,
+    processed or not: the largest N + 1), summed over the logs found. None when there is no
+    such log."""
+    paths = [p for node in SLAM_NODES
+             for p in glob.glob(os.path.join(log_dir, '**', '%s-%s-*-stdout.log' % (robot, node)), recursive=True)]
     paths = sorted({os.path.realpath(p) for p in paths})
     if not paths:
         return None
@@ -130,9 +136,9 @@ def report(bag_path: str, log_dir: str, robots: Sequence[str], rule: Dict[str, f
         rows.append({'robot': r, 'scans': scans, 'received': received, 'processed': processed,
                      'expected': expected, 'share': share, 'kept_up': ok})
         if counted is None:
-            print('%s%s: %d scans in the bag; no log of its gmapping under %s' % (label, r, scans, log_dir))
+            print('%s%s: %d scans in the bag; no log of its SLAM under %s' % (label, r, scans, log_dir))
             continue
-        print('%s%s: %d scans in the bag, %d reached gmapping, it processed %d of the %d its update rule '
+        print('%s%s: %d scans in the bag, %d reached its SLAM, it processed %d of the %d its update rule '
               'asks for (%.0f%%)%s' % (label, r, scans, received, processed, expected, 100 * (share or 0.0),
                                       '' if ok else ': it fell behind'))
     return rows
@@ -147,7 +153,7 @@ def main(argv: Optional[List[str]] = None) -> int:
     ap.add_argument('--robots', nargs='+', default=['tb3_0', 'tb3_1', 'tb3_2', 'tb3_3'])
     ap.add_argument('--config', default=default_cfg, help='gmapping parameters (default: %(default)s)')
     ap.add_argument('--min-share', type=float, default=0.9,
-                    help='least share of the expected scans a gmapping must process (default %(default)s)')
+                    help='least share of the expected scans a SLAM node must process (default %(default)s)')
     ap.add_argument('--scan-topic', default='/{robot}/scan', help='the scans in the bag (default %(default)s)')
     ap.add_argument('--odom-topic', default='/{robot}/odom', help='the odometry in the bag (default %(default)s)')
     ap.add_argument('--label', default='', help='text before each line')

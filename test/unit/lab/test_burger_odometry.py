@@ -98,3 +98,8 @@ def test_count_updates_reads_gmapping_stdout_logs(tmp_path):
     assert count_updates(str(tmp_path), 'tb3_1') == (2, 5)
     assert count_updates(str(tmp_path), 'tb3_0') == (1, 1)
     assert count_updates(str(tmp_path), 'tb3_2') is None
+    # slam:=rbpf: rbpf_slam's log, the same lines (not another robot's, not another node's)
+    (run / 'tb3_2-rbpf_slam-4-stdout.log').write_text('update frame 0\nupdate frame 3\nupdate frame 7\n')
+    (run / 'tb3_2-scan_frame_relay-5-stdout.log').write_text('update frame 9\n')
+    assert count_updates(str(tmp_path), 'tb3_2') == (3, 8)
+    assert count_updates(str(tmp_path), 'tb3_1') == (2, 5)

@@ -1,5 +1,11 @@
 """A launch arg outside its fixed set of values stops roslaunch with a message naming the arg,
-its value and the values allowed (launch/includes/check_arg.launch), and nothing starts.
+its value and the values allowed (launch/includes/check_arg.launch), and nothing starts; so does
+slam:=gmapping where ROS has no gmapping, with one line naming the package and slam:=rbpf
+(launch/includes/check_package.launch, from includes/slam_robot.launch).
+
+Where ROS has no gmapping, the rest of the module runs roslaunch with a stand-in package gmapping
+(a package.xml alone, conftest.gmapping_stand_in) first on its ROS_PACKAGE_PATH, so the
+slam:=gmapping path parses: the tests of the missing-gmapping line take it out again.
 
 Runs roslaunch itself (its dry parse, ``roslaunch --nodes``, and once a real ``roslaunch``):
 what a user types, the exit code and the text they read. No master is needed: the check fires
@@ -17,11 +23,32 @@ import pytest
 
 pytest.importorskip('roslaunch')
 import rospkg  # noqa: E402
-from conftest import BURGER_XACRO, REPO, SHARED, shared_file  # noqa: E402
+from conftest import BURGER_XACRO, REPO, SHARED, gmapping_stand_in, shared_file  # noqa: E402,F401
 
 LAUNCH = os.path.join(REPO, 'launch')
 ANSI = re.compile(r'\x1b\[[0-9;]*m')
 BURGER = os.path.join(SHARED, BURGER_XACRO)   # ROBOTIS's, in ../shared/data: skipped where absent
+
+
+@pytest.fixture(scope='module', autouse=True)
+def _gmapping_parses(gmapping_stand_in):  # noqa: F811
+    STAND_IN[:] = [gmapping_stand_in] if gmapping_stand_in else []
+    yield
+    STAND_IN[:] = []
+
+
+STAND_IN = []     # the stand-in gmapping's directory, while the module runs where ROS has none
+# what roslaunch says for slam:=gmapping where ROS has no gmapping (includes/slam_robot.launch)
+NO_GMAPPING = ('Value error: slam:=gmapping needs the ROS package gmapping (Ubuntu: sudo apt install '
+               'ros-noetic-gmapping), which ROS cannot find here: use slam:=rbpf (multi_map_merge\'s own '
+               'RBPF SLAM over MRPT)')
+
+
+def without_stand_in():
+    """The environment of roslaunch without the stand-in gmapping: ROS as it is here."""
+    path = [d for d in os.environ.get('ROS_PACKAGE_PATH', '').split(os.pathsep)
+            if not any(d == os.path.dirname(s) for s in STAND_IN)]
+    return {'ROS_PACKAGE_PATH': os.pathsep.join(path)}
 
 
 @pytest.fixture(scope='module', autouse=True)
@@ -41,11 +68,12 @@ def free_port():
         return s.getsockname()[1]
 
 
-def roslaunch(*args, dry=True, timeout=30):
-    """(exit code, stdout, stderr) of ``roslaunch [--nodes] launch/<args...>``, on a master URI
-    nobody serves (nothing here may reach another master on the machine)."""
-    env = dict(os.environ, ROS_MASTER_URI='http://127.0.0.1:%d' % free_port())
-    argv = ['roslaunch'] + (['--nodes'] if dry else []) + [os.path.join(LAUNCH, args[0])] + list(args[1:])
+def roslaunch(*args, dry=True, timeout=30, option='--nodes', env=None):
+    """(exit code, stdout, stderr) of ``roslaunch [option] launch/<args...>`` (``dry``: with the
+    option, by default --nodes), on a master URI nobody serves (nothing here may reach another
+    master on the machine); ``env``: variables changed."""
+    env = dict(os.environ, ROS_MASTER_URI='http://127.0.0.1:%d' % free_port(), **(env or {}))
+    argv = ['roslaunch'] + ([option] if dry else []) + [os.path.join(LAUNCH, args[0])] + list(args[1:])
     p = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env,
                          universal_newlines=True)
     try:
@@ -61,9 +89,11 @@ def roslaunch(*args, dry=True, timeout=30):
 
 BAD = [
     (('bag_replay.launch', 'bag:=/tmp/x.bag', 'slam:=gmaping'),
-     'slam:=gmaping is not one of: recorded, gmapping'),
+     'slam:=gmaping is not one of: recorded, gmapping, rbpf'),
     (('bag_replay.launch', 'bag:=/tmp/x.bag', 'slam:=gmapping', 'robot_count:=5'),
-     'robot_count:=5 is not one of: 1, 2, 3, 4 (slam:=gmapping runs one gmapping for each of tb3_0 .. tb3_3'),
+     'robot_count:=5 is not one of: 1, 2, 3, 4 (slam:=gmapping runs one SLAM for each of tb3_0 .. tb3_3'),
+    (('bag_replay.launch', 'bag:=/tmp/x.bag', 'slam:=rbpf', 'robot_count:=5'),
+     'robot_count:=5 is not one of: 1, 2, 3, 4 (slam:=rbpf runs one SLAM for each of tb3_0 .. tb3_3'),
     (('bag_replay.launch', 'bag:=/tmp/x.bag', 'slam:=gmapping', 'robot_count:=0'),
      'robot_count:=0 is not one of: 1, 2, 3, 4'),
     (('team_bags_gmapping.launch', 'bag_0:=/tmp/a.bag', 'bag_1:=/tmp/b.bag', 'clock_bag:=2'),
@@ -80,6 +110,10 @@ BAD = [
      'slam_on:=robto is not one of: base, robot'),
     (('turtlebot3_multi_slam.launch', 'model:=burgr', 'robot_count:=1'),
      'model:=burgr is not one of: burger, waffle, waffle_pi'),
+    (('turtlebot3_multi_slam.launch', 'urdf_file:=' + BURGER, 'slam:=rpbf'),
+     'slam:=rpbf is not one of: gmapping, rbpf'),
+    (('team_bags_gmapping.launch', 'bag_0:=/tmp/a.bag', 'slam:=recorded'),
+     'slam:=recorded is not one of: gmapping, rbpf'),
     (('map_merge.launch', 'output:=scren'), 'output:=scren is not one of: screen, log'),
 ]
 
@@ -98,17 +132,24 @@ def test_a_wrong_value_stops_roslaunch_naming_it(args, message):
 GOOD = [
     (('bag_replay.launch', 'bag:=/tmp/x.bag', 'slam:=gmapping', 'robot_count:=1'),
      ['/rosbag_play', '/tf_relay', '/tb3_0/scan_frame_relay', '/tb3_0/slam_gmapping', '/map_merge', '/rviz']),
+    (('bag_replay.launch', 'bag:=/tmp/x.bag', 'slam:=rbpf', 'robot_count:=2', 'rviz:=false'),
+     ['/rosbag_play', '/tf_relay', '/tb3_0/scan_frame_relay', '/tb3_0/rbpf_slam',
+      '/tb3_1/scan_frame_relay', '/tb3_1/rbpf_slam', '/map_merge']),
     (('bag_replay.launch', 'bag:=/tmp/x.bag', 'slam:=recorded', 'robot_count:=9', 'rviz:=false'),
      ['/rosbag_play', '/map_merge']),           # robot_count is not used by slam:=recorded
     (('team_bags_gmapping.launch', 'bag_0:=/tmp/a.bag', 'bag_2:=/tmp/c.bag', 'clock_bag:=2', 'rviz:=false'),
      ['/play_tb3_0', '/tb3_0/frame_prefix_relay', '/tb3_0/slam_gmapping',
       '/play_tb3_2', '/tb3_2/frame_prefix_relay', '/tb3_2/slam_gmapping', '/map_merge']),
+    (('team_bags_gmapping.launch', 'bag_0:=/tmp/a.bag', 'slam:=rbpf', 'rviz:=false'),
+     ['/play_tb3_0', '/tb3_0/frame_prefix_relay', '/tb3_0/rbpf_slam', '/map_merge']),
     (('turtlebot3_multi_slam.launch', 'urdf_file:=' + BURGER, 'robot_count:=1', 'model:=anything', 'rviz:=false'),
      ['/tb3_0/robot_state_publisher', '/tb3_0/scan_frame_relay', '/tb3_0/slam_gmapping', '/map_merge']),
+    (('turtlebot3_multi_slam.launch', 'urdf_file:=' + BURGER, 'robot_count:=1', 'slam:=rbpf', 'rviz:=false'),
+     ['/tb3_0/robot_state_publisher', '/tb3_0/scan_frame_relay', '/tb3_0/rbpf_slam', '/map_merge']),
 ]
 
 
-@pytest.mark.parametrize('args,expected', GOOD, ids=[' '.join(a[0:1] + a[-2:]) for a, _ in GOOD])
+@pytest.mark.parametrize('args,expected', GOOD, ids=[' '.join(a[0:1] + a[-3:]) for a, _ in GOOD])
 def test_right_values_pass_the_checks(args, expected):
     if 'urdf_file:=' + BURGER in args:
         shared_file(BURGER_XACRO)
@@ -128,8 +169,9 @@ def test_real_roslaunch_stops_before_any_master_or_node():
         assert started not in out + err, out + err
 
 
-def test_bag_replay_gmapping_relays_each_robots_scans_into_its_own_frame():
-    """Bags of real LDS-02 robots have their scans in "base_scan": each gmapping reads the scans
+@pytest.mark.parametrize('slam,exe', [('gmapping', 'slam_gmapping'), ('rbpf', 'rbpf_slam')])
+def test_bag_replay_live_slam_relays_each_robots_scans_into_its_own_frame(slam, exe):
+    """Bags of real LDS-02 robots have their scans in "base_scan": each SLAM reads the scans
     scan_frame_relay puts into tb3_N/base_scan; fix_scan_frame:=false reads /tb3_N/scan as it is."""
     from roslaunch.config import ROSLaunchConfig
     from roslaunch.xmlloader import XmlLoader
@@ -137,18 +179,19 @@ def test_bag_replay_gmapping_relays_each_robots_scans_into_its_own_frame():
     def load(*args):
         cfg = ROSLaunchConfig()
         XmlLoader().load(os.path.join(LAUNCH, 'bag_replay.launch'), cfg, verbose=False,
-                         argv=['bag:=/tmp/x.bag', 'slam:=gmapping', 'rviz:=false'] + list(args))
+                         argv=['bag:=/tmp/x.bag', 'slam:=' + slam, 'rviz:=false'] + list(args))
         return cfg
     cfg = load('robot_count:=3')
     relays = sorted(n.namespace for n in cfg.nodes if n.type == 'scan_frame_relay')
     assert relays == ['/tb3_0/', '/tb3_1/', '/tb3_2/']
     for i in range(3):
         assert cfg.params['/tb3_%d/scan_frame_relay/frame_id' % i].value == 'tb3_%d/base_scan' % i
-        (g,) = [n for n in cfg.nodes if n.type == 'slam_gmapping' and n.namespace == '/tb3_%d/' % i]
+        (g,) = [n for n in cfg.nodes if n.type == exe and n.namespace == '/tb3_%d/' % i]
         assert g.remap_args == [['scan', 'scan_framed']]
     cfg = load('robot_count:=2', 'fix_scan_frame:=false')
     assert [n for n in cfg.nodes if n.type == 'scan_frame_relay'] == []
-    assert all(n.remap_args == [] for n in cfg.nodes if n.type == 'slam_gmapping')
+    slams = [n for n in cfg.nodes if n.type == exe]
+    assert len(slams) == 2 and all(n.remap_args == [] for n in slams)
 
 
 @pytest.mark.parametrize('name', ['map_merge.launch', 'bag_replay.launch'])
@@ -177,7 +220,65 @@ def test_every_node_that_loads_a_yaml_clears_its_parameters_first():
             if any(r.get('command', 'load') == 'load' and r.get('file') for r in node.iter('rosparam')):
                 loading.append((os.path.relpath(path, REPO), node.get('name')))
                 assert node.get('clear_params') == 'true', (path, node.attrib)
-    # the merger, each robot's gmapping (and the test's second one, without the relay), move_base
+    # the merger, each robot's SLAM (gmapping's or ours; and the test's second one, without the
+    # relay), move_base
     assert ('launch/map_merge.launch', 'map_merge') in loading
-    assert ('launch/includes/gmapping_robot.launch', 'slam_gmapping') in loading
+    assert ('launch/includes/slam_robot.launch', 'slam_gmapping') in loading
+    assert ('launch/includes/slam_robot.launch', 'rbpf_slam') in loading
     assert len(loading) >= 4, loading
+
+
+MISSING_GMAPPING = [
+    ('bag_replay.launch', 'bag:=/tmp/x.bag', 'slam:=gmapping', 'robot_count:=1'),
+    ('turtlebot3_multi_slam.launch', 'urdf_file:=' + BURGER),          # slam defaults to gmapping
+    ('turtlebot3_multi_slam.launch', 'urdf_file:=' + BURGER, 'slam_on:=robot', 'robot_count:=2'),
+    ('team_bags_gmapping.launch', 'bag_0:=/tmp/a.bag'),                 # so does it here
+]
+
+
+# every launch's dry parse; roslaunch's other dry parses and the real one on two of them
+MISSING_CASES = ([(a, '--nodes') for a in MISSING_GMAPPING]
+                 + [(MISSING_GMAPPING[0], o) for o in ('--args=/tb3_0/slam_gmapping', '--dump-params', None)]
+                 + [(MISSING_GMAPPING[1], None)])
+
+
+@pytest.mark.parametrize('args,option', MISSING_CASES,
+                         ids=[' '.join(a[:1] + a[2:]) + ' ' + str(o) for a, o in MISSING_CASES])
+def test_slam_gmapping_without_gmapping_stops_roslaunch_with_one_line(args, option):
+    """Where ROS has no gmapping (Debian), slam:=gmapping stops roslaunch (its dry parses and the
+    real one) before anything starts, with one line naming the package and slam:=rbpf; the same
+    launch with slam:=rbpf goes on."""
+    if not STAND_IN:
+        pytest.skip('ROS has gmapping here: nothing is missing')
+    rc, out, err = roslaunch(*args, 'rviz:=false', dry=option is not None, option=option, env=without_stand_in())
+    if option == '--dump-params':
+        # roslaunch's own way here: the loader's message after its own words, and exit code 0
+        assert err.strip() == 'Unable to load file %s: %s' % (os.path.join(LAUNCH, args[0]),
+                                                              NO_GMAPPING[len('Value error: '):]), err
+        assert out.strip() == '', out       # no parameter dumped
+    else:
+        assert rc == 1, (rc, out, err)
+        # the line, then roslaunch's own pointer to its log: no traceback, no ROS path list
+        assert err.strip().splitlines() == [NO_GMAPPING,
+                                            'The traceback for the exception was written to the log file'], err
+        assert option is None or out.strip() == '', out
+    for started in ('auto-starting new master', 'process[', 'started roslaunch server', 'ROS_MASTER_URI='):
+        assert started not in out + err
+    if option == '--nodes':
+        rc, out, err = roslaunch(*args, 'rviz:=false', 'slam:=rbpf', env=without_stand_in())
+        assert rc == 0 and 'rbpf_slam' in out, (rc, out, err)
+
+
+def test_check_package_stops_on_a_package_ros_cannot_find():
+    """check_package.launch itself, wherever gmapping is or not: a package ROS cannot find stops
+    roslaunch with the message; one it finds (rosbag) passes; the name is data, not code."""
+    check = os.path.join('includes', 'check_package.launch')
+    rc, out, err = roslaunch(check, 'package:=no_such_package_xyz', 'needed_by:=thing x',
+                             'install:=apt install it', 'instead:=thing y')
+    assert rc == 1 and err.strip().splitlines()[0] == (
+        'Value error: thing x needs the ROS package no_such_package_xyz (apt install it), which ROS '
+        'cannot find here: use thing y'), err
+    rc, out, err = roslaunch(check, "package:=x') or True or ('", 'needed_by:=a test')
+    assert rc == 1 and "needs the ROS package x') or True or ('," in err, err
+    rc, out, err = roslaunch(check, 'package:=rosbag', 'needed_by:=a test')
+    assert (rc, out.strip()) == (0, ''), (rc, out, err)

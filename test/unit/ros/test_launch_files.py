@@ -1,7 +1,11 @@
 """Every launch file parses with roslaunch's own loader (no master) and starts what it should.
 
 gmapping and rviz are not in Debian, nor is robot_state_publisher by default: those packages are
-tolerated when missing, nothing else is.
+tolerated when missing, nothing else is. Each robot's SLAM is checked both ways, slam:=gmapping
+(gmapping's slam_gmapping) and slam:=rbpf (this package's rbpf_slam): where ROS has no gmapping,
+slam_robot.launch stops roslaunch for slam:=gmapping, so this module parses with a stand-in
+package gmapping (a package.xml alone, conftest.gmapping_stand_in) on ROS_PACKAGE_PATH: the
+parse of gmapping's launch path, args, parameters, remaps and frames, without gmapping.
 Run after sourcing the workspace's devel/setup.bash (``make unit`` does): without it the
 package cannot be found and these tests fail rather than pass vacuously.
 """
@@ -15,7 +19,7 @@ import yaml
 roslaunch = pytest.importorskip('roslaunch')
 import roslib.packages  # noqa: E402
 import rospkg  # noqa: E402
-from conftest import BURGER_XACRO, REPO, SHARED, shared_file  # noqa: E402
+from conftest import BURGER_XACRO, REPO, SHARED, gmapping_stand_in, shared_file  # noqa: E402,F401
 from roslaunch.config import ROSLaunchConfig  # noqa: E402
 from roslaunch.core import Node  # noqa: E402
 from roslaunch.xmlloader import XmlLoader  # noqa: E402
@@ -23,13 +27,28 @@ from roslaunch.xmlloader import XmlLoader  # noqa: E402
 LAUNCH = os.path.join(REPO, 'launch')
 RVIZ = os.path.join(REPO, 'rviz', 'multi_map_merge.rviz')
 MAY_BE_MISSING = {'gmapping', 'rviz', 'robot_state_publisher'}
-GMAPPING = os.path.join('includes', 'gmapping_robot.launch')
+SLAM_ROBOT = os.path.join('includes', 'slam_robot.launch')
+SLAMS = ['gmapping', 'rbpf']
+# slam:=X starts (package, executable = node name); both read the same gmapping YAML
+SLAM_NODE = {'gmapping': ('gmapping', 'slam_gmapping'), 'rbpf': ('multi_map_merge', 'rbpf_slam')}
+COMPILED = {'rbpf_slam'}      # this package's C++ executables (devel/lib), not scripts/
 TB3_BASE = os.path.join('includes', 'tb3_robot_base.launch')
 CHECK_ARG = os.path.join('includes', 'check_arg.launch')   # starts nothing: it only checks
+CHECK_PACKAGE = os.path.join('includes', 'check_package.launch')   # the same
 # ROBOTIS's burger URDF (xacro, in ../shared/data), read as a file where xacro is not installed
 # (Debian); a test giving it calls shared_file(BURGER_XACRO) first: skipped where it is absent
 BURGER = os.path.join(SHARED, BURGER_XACRO)
 URDF = 'urdf_file:=' + BURGER
+
+
+STAND_IN = []     # the stand-in gmapping's directory, while the module runs without gmapping
+
+
+@pytest.fixture(scope='module', autouse=True)
+def _gmapping_parses(gmapping_stand_in):  # noqa: F811
+    STAND_IN[:] = [gmapping_stand_in] if gmapping_stand_in else []
+    yield
+    STAND_IN[:] = []
 
 
 def load(name, *args):
@@ -54,17 +73,20 @@ def param(cfg, name):
 
 
 def check_executables(cfg):
-    """Every node's package and executable are found (gmapping and rviz excepted), ours are
-    executable scripts of this repository."""
+    """Every node's package and executable are found (gmapping and rviz excepted, and the
+    stand-in gmapping counts as none), ours are executable scripts of this repository or its
+    built C++ nodes (rbpf_slam)."""
     rp = rospkg.RosPack()
     for n in cfg.nodes:
         try:
             path = rp.get_path(n.package)
+            if path in STAND_IN:
+                raise rospkg.ResourceNotFound(n.package)
         except rospkg.ResourceNotFound:
             assert n.package in MAY_BE_MISSING, 'package %s of node %s not found' % (n.package, n.name)
             continue
         assert os.path.isdir(path), path
-        if n.package == 'multi_map_merge':
+        if n.package == 'multi_map_merge' and n.type not in COMPILED:
             exe = os.path.join(REPO, 'scripts', n.type)
             assert os.path.isfile(exe) and os.access(exe, os.X_OK), 'not executable: %s' % exe
         found = roslib.packages.find_node(n.package, n.type, rospack=rp)
@@ -85,16 +107,21 @@ def check_map_merge(cfg, reference=''):
     assert param(cfg, '/map_merge/reference_robot') == reference
 
 
-def check_gmapping(cfg, robots):
-    """One slam_gmapping per robot, in /<robot>/, with that robot's frames and the LDS-02 values."""
-    g = nodes(cfg, 'slam_gmapping')
+def check_slam(cfg, robots, slam='gmapping'):
+    """One SLAM node of ``slam`` per robot (gmapping: slam_gmapping, rbpf: rbpf_slam), in
+    /<robot>/, with that robot's frames and the LDS-02 values; no node of the other."""
+    pkg, exe = SLAM_NODE[slam]
+    (other,) = [e for s, (_, e) in SLAM_NODE.items() if s != slam]
+    assert nodes(cfg, other) == [], '%s started with slam:=%s' % (other, slam)
+    g = nodes(cfg, exe)
     assert sorted(n.namespace for n in g) == sorted('/%s/' % r for r in robots)
     for n in g:
-        assert n.package == 'gmapping' and n.name == 'slam_gmapping'
+        assert n.package == pkg and n.name == exe
+        assert n.output == 'log'        # its "update frame N" lines: lab/scans_processed.py reads them
         assert not n.remap_args or all(t.strip('/') != 'scan' for _, t in n.remap_args), \
             'scan must stay relative (/<robot>/scan)'
     for r in robots:
-        p = '/%s/slam_gmapping/' % r
+        p = '/%s/%s/' % (r, exe)
         assert param(cfg, p + 'base_frame') == '%s/base_footprint' % r
         assert param(cfg, p + 'odom_frame') == '%s/odom' % r
         assert param(cfg, p + 'map_frame') == '%s/map' % r
@@ -102,6 +129,7 @@ def check_gmapping(cfg, robots):
         assert param(cfg, p + 'maxUrange') == 3.0
         assert param(cfg, p + 'particles') == 100
         assert param(cfg, p + 'delta') == 0.05
+    return g
 
 
 def check_rviz(cfg, wanted):
@@ -188,23 +216,60 @@ def test_the_urdf_file_default_is_the_xacro_of_the_model():
     (Debian) the default cannot load: roslaunch names what it did not find."""
     for args in ((), ('urdf_file:=',)):
         try:
-            cfg = load(TB3_BASE, 'robot:=tb3_0', *args)
+            cfg = load(TB3_BASE, 'robot:=tb3_0', 'slam:=rbpf', *args)
         except (roslaunch.core.RLException, rospkg.ResourceNotFound) as e:
             assert 'xacro' in str(e) or 'turtlebot3_description' in str(e), e
             continue
         assert 'turtlebot3_burger.urdf.xacro' in param(cfg, '/tb3_0/robot_description') or \
             '<robot' in param(cfg, '/tb3_0/robot_description')
     shared_file(BURGER_XACRO)
-    cfg = load(TB3_BASE, 'robot:=tb3_0', URDF, 'model:=not_a_model')   # a file: the model is not checked
+    cfg = load(TB3_BASE, 'robot:=tb3_0', 'slam:=rbpf', URDF, 'model:=not_a_model')   # a file: the model is not checked
     with open(BURGER) as f:
         assert param(cfg, '/tb3_0/robot_description') == f.read()
 
 
-def test_gmapping_robot_include():
-    cfg = load(GMAPPING, 'ns:=tb3_7')
-    check_gmapping(cfg, ['tb3_7'])
+@pytest.mark.parametrize('slam', SLAMS)
+def test_slam_robot_include(slam):
+    cfg = load(SLAM_ROBOT, 'ns:=tb3_7', 'slam:=' + slam)
+    check_slam(cfg, ['tb3_7'], slam)
     assert len(cfg.nodes) == 1
     check_executables(cfg)
+
+
+LAUNCHES_WITH_SLAM = [
+    ('turtlebot3_multi_slam.launch', [URDF, 'robot_count:=2', 'slam_on:=robot'], ['tb3_0', 'tb3_1']),
+    ('bag_replay.launch', ['bag:=/tmp/x.bag', 'robot_count:=3'], ['tb3_0', 'tb3_1', 'tb3_2']),
+    ('team_bags_gmapping.launch', ['bag_0:=/tmp/a.bag', 'bag_2:=/tmp/c.bag', 'particles:=12'], ['tb3_0', 'tb3_2']),
+    (SLAM_ROBOT, ['ns:=tb3_5', 'scan_topic:=scan_x', 'machine:=', 'base_frame:=base_link'], ['tb3_5']),
+]
+
+
+@pytest.mark.parametrize('name,args,robots', LAUNCHES_WITH_SLAM, ids=[n for n, _, _ in LAUNCHES_WITH_SLAM])
+def test_rbpf_gets_what_gmapping_gets(name, args, robots):
+    """slam:=rbpf starts rbpf_slam where slam:=gmapping starts slam_gmapping, and nothing else
+    changes: the same namespaces, parameters (the gmapping YAML, frames, particles), remaps,
+    machines; every other node and parameter the same."""
+    got = {}
+    for slam in SLAMS:
+        cfg = load(name, 'slam:=' + slam, *args)
+        exe = SLAM_NODE[slam][1]
+        if name in ('turtlebot3_multi_slam.launch', 'bag_replay.launch'):   # the LDS-02 YAML, base_footprint
+            check_slam(cfg, robots, slam)
+        slam_nodes = sorted((n.namespace, tuple(map(tuple, n.remap_args)), n.machine_name, n.output)
+                            for n in nodes(cfg, exe))
+        assert len(slam_nodes) == len(robots)
+        params = {k.replace('/%s/' % exe, '/SLAM/'): p.value for k, p in cfg.params.items()}
+        others = sorted((n.package, n.type, n.namespace, n.name, tuple(map(tuple, n.remap_args)))
+                        for n in cfg.nodes if n.type != exe)
+        got[slam] = (slam_nodes, params, others, sorted(cfg.clear_params))
+    assert got['rbpf'][0] == got['gmapping'][0]
+    assert got['rbpf'][1] == got['gmapping'][1]
+    assert got['rbpf'][2] == got['gmapping'][2]
+    g_clear = [c.replace('/slam_gmapping/', '/rbpf_slam/') for c in got['gmapping'][3]]
+    assert got['rbpf'][3] == sorted(g_clear)
+    assert {'/%s/SLAM/map_frame' % r for r in robots} <= set(got['rbpf'][1])   # compared, not absent
+    if name == 'team_bags_gmapping.launch':
+        assert {v for k, v in got['rbpf'][1].items() if k.endswith('/SLAM/particles')} == {12}
 
 
 def check_robots_rviz(cfg, robots):
@@ -216,16 +281,16 @@ def check_robots_rviz(cfg, robots):
     return argv
 
 
-def check_robot_base(cfg, robots, machine=False):
+def check_robot_base(cfg, robots, machine=False, slam='gmapping'):
     """Per robot, in /<robot>/: robot_state_publisher with tf_prefix <robot> (ROBOTIS's
-    turtlebot3_remote.launch multi_robot_name), the scan frame relay into gmapping."""
+    turtlebot3_remote.launch multi_robot_name), the scan frame relay into the SLAM."""
     for kind in ('robot_state_publisher', 'scan_frame_relay'):
         assert sorted(n.namespace for n in nodes(cfg, kind)) == sorted('/%s/' % r for r in robots), kind
     for r in robots:
         assert param(cfg, '/%s/robot_state_publisher/tf_prefix' % r) == r
         assert param(cfg, '/%s/scan_frame_relay/frame_id' % r) == '%s/base_scan' % r
         assert '/%s/robot_description' % r in cfg.params
-        (g,) = [n for n in nodes(cfg, 'slam_gmapping') if n.namespace == '/%s/' % r]
+        (g,) = [n for n in nodes(cfg, SLAM_NODE[slam][1]) if n.namespace == '/%s/' % r]
         assert g.remap_args == [['scan', 'scan_framed']]
     for n in cfg.nodes:
         if n.namespace != '/':
@@ -237,13 +302,14 @@ def check_robot_base(cfg, robots, machine=False):
                 assert m.user == 'ubuntu'
 
 
+@pytest.mark.parametrize('slam', SLAMS)
 @pytest.mark.parametrize('count,rviz', [(1, 'false'), (2, 'true'), (3, 'false'), (4, 'true')])
-def test_multi_slam(count, rviz):
+def test_multi_slam(count, rviz, slam):
     shared_file(BURGER_XACRO)
-    cfg = load('turtlebot3_multi_slam.launch', URDF, 'robot_count:=%d' % count, 'rviz:=%s' % rviz)
+    cfg = load('turtlebot3_multi_slam.launch', URDF, 'robot_count:=%d' % count, 'rviz:=%s' % rviz, 'slam:=' + slam)
     robots = ['tb3_%d' % i for i in range(count)]
-    check_gmapping(cfg, robots)
-    check_robot_base(cfg, robots)
+    check_slam(cfg, robots, slam)
+    check_robot_base(cfg, robots, slam=slam)
     check_map_merge(cfg)
     assert param(cfg, '/map_merge/robots') == ' '.join(robots)
     if rviz == 'true':
@@ -257,12 +323,12 @@ def test_multi_slam(count, rviz):
 def test_multi_slam_defaults_and_names():
     shared_file(BURGER_XACRO)
     cfg = load('turtlebot3_multi_slam.launch', URDF)
-    check_gmapping(cfg, ['tb3_0', 'tb3_1', 'tb3_2', 'tb3_3'])
+    check_slam(cfg, ['tb3_0', 'tb3_1', 'tb3_2', 'tb3_3'], 'gmapping')   # slam defaults to gmapping, as ROBOTIS's
     check_robots_rviz(cfg, ['tb3_0', 'tb3_1', 'tb3_2', 'tb3_3'])
     assert cfg.machines.keys() <= {''}            # slam_on:=base: everything on this machine
     cfg = load('turtlebot3_multi_slam.launch', URDF, 'robot_count:=2', 'first_tb3:=alpha',
                'second_tb3:=beta', 'reference_robot:=beta')
-    check_gmapping(cfg, ['alpha', 'beta'])
+    check_slam(cfg, ['alpha', 'beta'])
     check_robot_base(cfg, ['alpha', 'beta'])
     check_map_merge(cfg, reference='beta')
 
@@ -274,6 +340,8 @@ def test_multi_slam_on_the_robots():
     cfg = load('turtlebot3_multi_slam.launch', URDF, 'robot_count:=2', 'slam_on:=robot',
                'first_tb3_address:=10.0.0.21', 'second_tb3_address:=burger2.local')
     check_robot_base(cfg, ['tb3_0', 'tb3_1'], machine=True)
+    check_robot_base(load('turtlebot3_multi_slam.launch', URDF, 'robot_count:=2', 'slam_on:=robot', 'slam:=rbpf'),
+                     ['tb3_0', 'tb3_1'], machine=True, slam='rbpf')
     assert cfg.machines['tb3_0'].address == '10.0.0.21'
     assert cfg.machines['tb3_1'].address == 'burger2.local'
     assert [(m.ssh_port, m.timeout) for m in (cfg.machines['tb3_0'], cfg.machines['tb3_1'])] == [(22, 30.0)] * 2
@@ -341,26 +409,28 @@ def check_play(cfg, bag, rate='1.0', start='0'):
 def test_bag_replay_recorded():
     cfg = load('bag_replay.launch', 'bag:=/tmp/x.bag', 'slam:=recorded', 'rviz:=false')
     check_play(cfg, '/tmp/x.bag')
-    assert nodes(cfg, 'slam_gmapping') == []      # the bag's own /tb3_N/map are merged
+    assert nodes(cfg, 'slam_gmapping') == [] and nodes(cfg, 'rbpf_slam') == []   # the bag's own /tb3_N/map are merged
     check_map_merge(cfg)
     check_rviz(cfg, False)
     assert sorted(n.type for n in cfg.nodes) == ['map_merge_node', 'play']
     check_executables(cfg)
 
 
+@pytest.mark.parametrize('slam', SLAMS)
 @pytest.mark.parametrize('count', [2, 4])
-def test_bag_replay_gmapping(count):
-    cfg = load('bag_replay.launch', 'bag:=/tmp/x.bag', 'slam:=gmapping', 'rviz:=true',
+def test_bag_replay_live_slam(count, slam):
+    cfg = load('bag_replay.launch', 'bag:=/tmp/x.bag', 'slam:=' + slam, 'rviz:=true',
                'robot_count:=%d' % count, 'rate:=2.5', 'start:=30')
     check_play(cfg, '/tmp/x.bag', rate='2.5', start='30')
-    check_gmapping(cfg, ['tb3_%d' % i for i in range(count)])
+    check_slam(cfg, ['tb3_%d' % i for i in range(count)], slam)
     check_map_merge(cfg)
     check_rviz(cfg, True)
     check_executables(cfg)
 
 
-def test_bag_replay_gmapping_moves_the_recorded_slam_aside():
-    cfg = load('bag_replay.launch', 'bag:=/tmp/x.bag', 'slam:=gmapping', 'rviz:=false')
+@pytest.mark.parametrize('slam', SLAMS)
+def test_bag_replay_live_slam_moves_the_recorded_slam_aside(slam):
+    cfg = load('bag_replay.launch', 'bag:=/tmp/x.bag', 'slam:=' + slam, 'rviz:=false')
     (play,) = nodes(cfg, 'play')
     remaps = dict(play.remap_args)
     assert remaps['/tf'] == '/tf_bag'                   # tf_relay passes it on without map -> odom
@@ -390,7 +460,7 @@ def test_replay_robot_bags(bags):
 
 def test_bag_replay_defaults():
     cfg = load('bag_replay.launch', 'bag:=/tmp/x.bag')
-    assert nodes(cfg, 'slam_gmapping') == []      # slam defaults to recorded
+    assert nodes(cfg, 'slam_gmapping') == [] and nodes(cfg, 'rbpf_slam') == []   # slam defaults to recorded
     check_rviz(cfg, True)
 
 
@@ -412,14 +482,15 @@ def test_missing_packages_tolerated_only_for_gmapping_and_rviz():
 REQUIRED_ARGS = {
     'bag_replay.launch': ['bag:=/tmp/x.bag'],
     'replay_robot_bags.launch': ['bag_0:=/tmp/x.bag'],
-    GMAPPING: ['ns:=tb3_0'],
+    SLAM_ROBOT: ['ns:=tb3_0', 'slam:=rbpf'],
     'turtlebot3_multi_slam.launch': [URDF],
-    TB3_BASE: ['robot:=tb3_0', URDF],
+    TB3_BASE: ['robot:=tb3_0', 'slam:=rbpf', URDF],
     'team_bags_gmapping.launch': ['bag_0:=/tmp/x.bag', 'bag_1:=/tmp/y.bag'],
     CHECK_ARG: ['name:=slam', 'value:=gmapping', 'allowed:=recorded gmapping'],
+    CHECK_PACKAGE: ['package:=rosbag', 'needed_by:=a test'],
     os.path.join('includes', 'team_bag_robot.launch'): [
         'ns:=tb3_0', 'bag:=/tmp/x.bag', 'clock:=true', 'clock_path:=/tmp/x.bag', 'rate:=1', 'scan_topic:=/scan',
-        'odom_topic:=/odom', 'base_frame:=base_link',
+        'odom_topic:=/odom', 'base_frame:=base_link', 'slam:=rbpf',
         'gmapping_config:=' + os.path.join(LAUNCH, '..', 'config', 'gmapping_default.yaml')],
 }
 ALL_LAUNCH = sorted(os.path.relpath(p, LAUNCH)
@@ -428,7 +499,7 @@ ALL_LAUNCH = sorted(os.path.relpath(p, LAUNCH)
 
 def test_launch_files_found():
     assert set(ALL_LAUNCH) >= {'map_merge.launch', 'turtlebot3_multi_slam.launch',
-                               'bag_replay.launch', 'team_bags_gmapping.launch', GMAPPING}
+                               'bag_replay.launch', 'team_bags_gmapping.launch', SLAM_ROBOT, CHECK_PACKAGE}
 
 
 @pytest.mark.parametrize('name', ALL_LAUNCH)
@@ -436,7 +507,7 @@ def test_every_launch_file_parses_and_its_nodes_exist(name):
     if URDF in REQUIRED_ARGS.get(name, []):
         shared_file(BURGER_XACRO)
     cfg = load(name, *REQUIRED_ARGS.get(name, []))
-    assert cfg.nodes or name == CHECK_ARG, '%s starts no node' % name
+    assert cfg.nodes or name in (CHECK_ARG, CHECK_PACKAGE), '%s starts no node' % name
     check_executables(cfg)
     if not name.startswith('includes'):  # every top-level launch file runs the merger
         check_map_merge(cfg)
@@ -490,9 +561,12 @@ def test_rviz_config():
     assert vm['Views']['Current']['Class'] == 'rviz/TopDownOrtho'
 
 
-def test_team_bags_gmapping_prefixes_each_robot_onto_one_clock():
+@pytest.mark.parametrize('slam', SLAMS + [None])
+def test_team_bags_gmapping_prefixes_each_robot_onto_one_clock(slam):
     cfg = load('team_bags_gmapping.launch', 'bag_0:=/tmp/a.bag', 'bag_1:=/tmp/b.bag', 'bag_2:=/tmp/c.bag',
-               'clock_bag:=1', 'rate:=3', 'rviz:=false')
+               'clock_bag:=1', 'rate:=3', 'rviz:=false', *(['slam:=' + slam] if slam else []))
+    exe = SLAM_NODE[slam or 'gmapping'][1]      # slam defaults to gmapping
+    assert sorted(n.namespace for n in nodes(cfg, exe)) == ['/tb3_0/', '/tb3_1/', '/tb3_2/']
     plays = {n.name: n for n in nodes(cfg, 'play')}
     assert sorted(plays) == ['play_tb3_0', 'play_tb3_1', 'play_tb3_2']
     for k, bag in enumerate(['/tmp/a.bag', '/tmp/b.bag', '/tmp/c.bag']):
@@ -507,9 +581,10 @@ def test_team_bags_gmapping_prefixes_each_robot_onto_one_clock():
     for k, bag in enumerate(['/tmp/a.bag', '/tmp/b.bag', '/tmp/c.bag']):
         assert params['/tb3_%d/frame_prefix_relay/bag' % k] == bag
         assert params['/tb3_%d/frame_prefix_relay/clock_bag' % k] == '/tmp/b.bag'
-        assert params['/tb3_%d/slam_gmapping/base_frame' % k] == 'tb3_%d/base_link' % k
-        assert params['/tb3_%d/slam_gmapping/odom_frame' % k] == 'tb3_%d/odom' % k
-        assert params['/tb3_%d/slam_gmapping/map_frame' % k] == 'tb3_%d/map' % k
+        assert params['/tb3_%d/%s/base_frame' % (k, exe)] == 'tb3_%d/base_link' % k
+        assert params['/tb3_%d/%s/odom_frame' % (k, exe)] == 'tb3_%d/odom' % k
+        assert params['/tb3_%d/%s/map_frame' % (k, exe)] == 'tb3_%d/map' % k
+        assert params['/tb3_%d/%s/particles' % (k, exe)] == 30      # config/gmapping_default.yaml
     assert params['/use_sim_time'] is True
 
 

@@ -286,9 +286,10 @@ def test_what_a_robot_runs_imports_only_its_keys():
 
 def test_the_nodes_started_on_a_robot_are_robot_keys():
     """Every <node machine="..."> of the launch files (slam_on:=robot starts it on the robot over
-    ssh) is of a package a robot has, and of ours only the relays."""
+    ssh) is of a package a robot has, and of ours only the relays and, with slam:=rbpf, our
+    compiled SLAM node rbpf_slam (built on the robot with the package)."""
     run = declared(ROBOT_ENV)['exec_depend']
-    relays = {os.path.basename(p) for p in ROBOT_CODE if p.startswith('scripts/')}
+    relays = {os.path.basename(p) for p in ROBOT_CODE if p.startswith('scripts/')} | {'rbpf_slam'}
     seen = set()
     for f in glob.glob(os.path.join(REPO, 'launch', '**', '*.launch'), recursive=True):
         for el in ET.parse(f).getroot().iter('node'):
@@ -300,7 +301,7 @@ def test_the_nodes_started_on_a_robot_are_robot_keys():
             else:
                 assert el.get('pkg') in run, '%s starts %s/%s on a robot: not a robot-side key' % (
                     os.path.relpath(f, REPO), el.get('pkg'), el.get('type'))
-    assert {('gmapping', 'slam_gmapping'), ('robot_state_publisher', 'robot_state_publisher'),
+    assert {('gmapping', 'slam_gmapping'), (OWN, 'rbpf_slam'), ('robot_state_publisher', 'robot_state_publisher'),
             (OWN, 'scan_frame_relay')} <= seen, seen
 
 

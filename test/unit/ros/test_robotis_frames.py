@@ -1,5 +1,7 @@
 """The frames and topics our real-robot launch gives each robot's gmapping are exactly those
-ROBOTIS's own Noetic nodes publish for that robot.
+ROBOTIS's own Noetic nodes publish for that robot (slam:=rbpf's rbpf_slam gets the same:
+test_launch_files.py; where ROS has no gmapping this parses with a stand-in package gmapping,
+conftest.gmapping_stand_in).
 
 ROBOTIS's launch files and the burger's URDF (noetic branch of ROBOTIS-GIT/turtlebot3, Apache-2.0,
 read in place from ../shared/data/robotis/turtlebot3; skipped where absent) are resolved with roslaunch's own XML loader
@@ -28,7 +30,7 @@ import pytest
 
 roslaunch = pytest.importorskip('roslaunch')
 import rospkg  # noqa: E402
-from conftest import REPO, SHARED, shared_file  # noqa: E402
+from conftest import REPO, SHARED, gmapping_stand_in, shared_file  # noqa: E402,F401
 from conftest import ROBOTIS as ROBOTIS_IN_SHARED  # noqa: E402
 from roslaunch import substitution_args  # noqa: E402
 from roslaunch.config import ROSLaunchConfig  # noqa: E402
@@ -38,6 +40,12 @@ ROBOTIS = os.path.join(SHARED, ROBOTIS_IN_SHARED)
 BRINGUP = os.path.join(ROBOTIS, 'turtlebot3_bringup', 'launch')
 BURGER = os.path.join(ROBOTIS, 'turtlebot3_description', 'urdf', 'turtlebot3_burger.urdf.xacro')
 OURS = os.path.join(REPO, 'launch', 'turtlebot3_multi_slam.launch')
+
+
+@pytest.fixture(scope='module', autouse=True)
+def _gmapping_parses(gmapping_stand_in):  # noqa: F811
+    """turtlebot3_multi_slam.launch's slam:=gmapping (its default) parses without gmapping."""
+    yield
 
 
 @pytest.fixture
