@@ -31,6 +31,9 @@ SLAM_ROBOT = os.path.join('includes', 'slam_robot.launch')
 SLAMS = ['gmapping', 'rbpf']
 # slam:=X starts (package, executable = node name); both read the same gmapping YAML
 SLAM_NODE = {'gmapping': ('gmapping', 'slam_gmapping'), 'rbpf': ('multi_map_merge', 'rbpf_slam')}
+# slam:=X's default settings (slam_robot.launch's config (slam)), as loaded
+SLAM_YAML = {s: yaml.safe_load(open(os.path.join(REPO, 'config', f)))
+             for s, f in (('gmapping', 'gmapping_lds02.yaml'), ('rbpf', 'rbpf_lds02.yaml'))}
 COMPILED = {'rbpf_slam'}      # this package's C++ executables (devel/lib), not scripts/
 TB3_BASE = os.path.join('includes', 'tb3_robot_base.launch')
 CHECK_ARG = os.path.join('includes', 'check_arg.launch')   # starts nothing: it only checks
@@ -127,7 +130,8 @@ def check_slam(cfg, robots, slam='gmapping'):
         assert param(cfg, p + 'map_frame') == '%s/map' % r
         assert param(cfg, p + 'maxRange') == 8.0
         assert param(cfg, p + 'maxUrange') == 3.0
-        assert param(cfg, p + 'particles') == 100
+        # each SLAM's own LDS-02 settings (rbpf_slam keeps a grid per particle: 30, not 100)
+        assert param(cfg, p + 'particles') == SLAM_YAML[slam]['particles']
         assert param(cfg, p + 'delta') == 0.05
     return g
 
@@ -247,8 +251,9 @@ LAUNCHES_WITH_SLAM = [
 @pytest.mark.parametrize('name,args,robots', LAUNCHES_WITH_SLAM, ids=[n for n, _, _ in LAUNCHES_WITH_SLAM])
 def test_rbpf_gets_what_gmapping_gets(name, args, robots):
     """slam:=rbpf starts rbpf_slam where slam:=gmapping starts slam_gmapping, and nothing else
-    changes: the same namespaces, parameters (the gmapping YAML, frames, particles), remaps,
-    machines; every other node and parameter the same."""
+    changes: the same namespaces, parameters (frames, particles given), remaps, machines; every
+    other node and parameter the same. The SLAM YAML is each SLAM's own by default (compared
+    apart: check_slam), the one given otherwise."""
     got = {}
     for slam in SLAMS:
         cfg = load(name, 'slam:=' + slam, *args)
@@ -259,6 +264,9 @@ def test_rbpf_gets_what_gmapping_gets(name, args, robots):
                             for n in nodes(cfg, exe))
         assert len(slam_nodes) == len(robots)
         params = {k.replace('/%s/' % exe, '/SLAM/'): p.value for k, p in cfg.params.items()}
+        if name != 'team_bags_gmapping.launch':    # each SLAM's own default YAML: checked by check_slam
+            params = {k: v for k, v in params.items()
+                      if not ('/SLAM/' in k and k.rsplit('/', 1)[1] in set(SLAM_YAML['gmapping']) | set(SLAM_YAML['rbpf']))}
         others = sorted((n.package, n.type, n.namespace, n.name, tuple(map(tuple, n.remap_args)))
                         for n in cfg.nodes if n.type != exe)
         got[slam] = (slam_nodes, params, others, sorted(cfg.clear_params))
