@@ -265,8 +265,8 @@ def test_rbpf_gets_what_gmapping_gets(name, args, robots):
         assert len(slam_nodes) == len(robots)
         params = {k.replace('/%s/' % exe, '/SLAM/'): p.value for k, p in cfg.params.items()}
         if name != 'team_bags_gmapping.launch':    # each SLAM's own default YAML: checked by check_slam
-            params = {k: v for k, v in params.items()
-                      if not ('/SLAM/' in k and k.rsplit('/', 1)[1] in set(SLAM_YAML['gmapping']) | set(SLAM_YAML['rbpf']))}
+            own = set(SLAM_YAML['gmapping']) | set(SLAM_YAML['rbpf'])
+            params = {k: v for k, v in params.items() if not ('/SLAM/' in k and k.rsplit('/', 1)[1] in own)}
         others = sorted((n.package, n.type, n.namespace, n.name, tuple(map(tuple, n.remap_args)))
                         for n in cfg.nodes if n.type != exe)
         got[slam] = (slam_nodes, params, others, sorted(cfg.clear_params))
