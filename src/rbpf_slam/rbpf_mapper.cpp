@@ -4,6 +4,8 @@
 #include <mrpt/obs/CActionCollection.h>
 #include <mrpt/obs/CActionRobotMovement2D.h>
 #include <mrpt/obs/CSensoryFrame.h>
+#include <mrpt/poses/CPosePDFGaussian.h>
+#include <mrpt/maps/CSimpleMap.h>
 #include <mrpt/random/RandomGenerators.h>
 
 #include <chrono>
@@ -103,6 +105,13 @@ bool RbpfMapper::offer(double stamp, const CPose2D& odom, const mrpt::obs::CObse
 	}
 	prevOdom_ = odom;
 	if (!process) return false;
+	if (processed_ == 0)
+	{
+		// the map frame is the odometry frame at the first scan, as gmapping's: the robot starts
+		// at its odometry pose (a node started after the robot moved still maps in its odom frame)
+		const mrpt::poses::CPosePDFGaussian start(odom);
+		builder_->initialize(mrpt::maps::CSimpleMap(), &start);
+	}
 
 	mrpt::obs::CActionCollection actions;
 	mrpt::obs::CActionRobotMovement2D move;
