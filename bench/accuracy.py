@@ -148,6 +148,10 @@ MRPT = os.path.join(SHARED, 'peers', 'mrpt')
 PEER_WS = os.environ.get('PEER_WS', '/tmp/peer_ws')
 MRPT_BIN = os.environ.get('MRPT_PEER_BIN', '/tmp/mrpt_peer/mrpt_align')
 NICENESS = 10   # of this process and so of everything it starts (they inherit it)
+# the address space each SLAM run may take (GiB; SLAM_MEMORY_GB, 0: no limit): the machine is shared,
+# and a run whose particles' grids outgrow it fails alone (INVALID, naming the limit) instead of
+# waking the kernel's OOM killer
+SLAM_MEMORY_GB = float(os.environ.get('SLAM_MEMORY_GB', '4'))
 PY = '/usr/bin/python3' if os.path.exists('/usr/bin/python3') else sys.executable
 
 _print_lock = threading.Lock()
@@ -661,6 +665,9 @@ def run_gmapping(exe: str, bag: str, topic: str, name: str, seed: int, config: s
     on_done = ' '.join(shlex.quote(x) for x in [PY, os.path.join(REPO, 'scripts', 'save_map'),
                                                 '-f', prefix, '--topic', '/map', '--timeout', '60'])
     cmd = [exe, '--bag_filename', bag, '--scan_topic', topic, '--seed', str(seed), '--on_done', on_done]
+    prlimit = shutil.which('prlimit')
+    if SLAM_MEMORY_GB > 0 and prlimit:
+        cmd = [prlimit, '--as=%d' % int(SLAM_MEMORY_GB * (1 << 30)), '--'] + cmd
     with Roscore(port, prefix + '.core.log', ros_home) as core:
         core.set_params(params)
         r = run_timed(cmd, prefix + '.log', core.env, timeout)
@@ -677,7 +684,12 @@ def run_gmapping(exe: str, bag: str, topic: str, name: str, seed: int, config: s
                  'scans': scans, 'processed': processed, 'dropped': dropped, 'rc': r['rc'],
                  'wall_s': r['wall_s'], 'cpu_s': r['cpu_s'], 'map': prefix + '.yaml', 'log': prefix + '.log'})
     why = None
-    if r['timed_out']:
+    out_of_memory = 'std::bad_alloc' in log or r['rc'] == -9
+    if out_of_memory:
+        why = ('%s ran out of memory (exit %s: %s; its limit %s GiB, SLAM_MEMORY_GB) after %d of %d scans (%s)'
+               % (label, r['rc'], 'std::bad_alloc' if 'std::bad_alloc' in log else 'killed', SLAM_MEMORY_GB,
+                  processed, scans, prefix + '.log'))
+    elif r['timed_out']:
         why = '%s did not finish within %.0f s' % (label, timeout)
     elif processed == 0:
         why = '%s processed no scan of %d (%s)' % (label, scans, prefix + '.log')
@@ -687,7 +699,7 @@ def run_gmapping(exe: str, bag: str, topic: str, name: str, seed: int, config: s
         why = 'no map saved (%s)' % (prefix + '.log')
     if why:
         meta['invalid'] = why
-    if not _stopping.is_set():
+    if not _stopping.is_set() and not out_of_memory:   # (out of memory: tried again next time)
         write_json(meta_path, meta)           # last, at once: its presence means the run is complete
     meta['cached'] = False
     return meta
