@@ -97,21 +97,24 @@ bench: build
 	  && python3 bench/cluster_overhead.py -o bench/results/cluster_overhead.txt
 
 # The paper's experiment as a benchmark (not part of `make test`): 4 Turtlebot3s merged vs 1 alone,
-# every map made by a real SLAM per robot (every scan), 5 seeds x 2 worlds (the project's own home,
-# the Intel lab of ../shared/data), against the rigid bound and MRPT's merge (and m-explore's where
-# its node is installed); writes bench/results/accuracy.{json,md,txt}. Bags and maps are cached in
-# /tmp/mmm_accuracy. ACCURACY_ARGS=--quick: 1 seed, the home only (accuracy_quick.*); --worlds
-# home,house,intel adds the AWS small house of ../shared/data; see bench/README.md.
+# every map made by our SLAM, rbpf_slam (rbpf_slam_replay, every scan, config/rbpf_lds02.yaml),
+# 5 seeds x 2 worlds (the project's own home, the Intel lab of ../shared/data), against the rigid
+# bound and MRPT's merge (and m-explore's where its node is installed); writes
+# bench/results/accuracy.{json,md,txt}. Bags and maps are cached in /tmp/mmm_accuracy.
+# ACCURACY_ARGS=--quick: 1 seed, the home only (accuracy_quick.*); --worlds home,house,intel adds
+# the AWS small house of ../shared/data; --slam gmapping: gmapping's slam_gmapping_replay where ROS
+# has gmapping (accuracy_gmapping.*); see bench/README.md.
 ACCURACY_ARGS ?=
 accuracy: build
 	$(call apt_install,$(BENCH_PKGS))
 	@$(ROS_ENV) && cd $(CURDIR) && python3 bench/accuracy.py $(ACCURACY_ARGS)
 
-# Placement covariances against the real error on REAL gmapping maps of REAL CARMEN logs (not
-# part of `make test`): 6 logs x 3 and 4 robots x 2 seeds, one gmapping per robot, one merge per
-# case; writes bench/results/bend_sweep.{json,txt}. Bags, maps and fits are cached in /tmp/mmm_bend:
-# a rerun only merges. BEND_SWEEP_ARGS, e.g. BEND_SWEEP_ARGS="--merge-only --config max_position_sigma=0.2 --stem x";
-# see bench/README.md.
+# Placement covariances against the real error, and each robot's map against the ground truth, on
+# REAL SLAM maps of REAL CARMEN logs (not part of `make test`): 6 logs x 3 and 4 robots x 2 seeds,
+# one rbpf_slam per robot (rbpf_slam_replay, config/gmapping_default.yaml + maxUrange 20; --slam
+# gmapping where ROS has gmapping), one merge per case; writes bench/results/bend_sweep.{json,txt}.
+# Bags, maps and fits are cached in /tmp/mmm_bend: a rerun only merges. BEND_SWEEP_ARGS, e.g.
+# BEND_SWEEP_ARGS="--merge-only --config max_position_sigma=0.2 --stem x"; see bench/README.md.
 BEND_SWEEP_ARGS ?=
 bend-sweep: build
 	@$(ROS_ENV) && cd $(CURDIR) && python3 bench/bend_sweep.py $(BEND_SWEEP_ARGS)

@@ -1,22 +1,27 @@
 #!/usr/bin/env python3
 """The paper's experiment as a benchmark: four Turtlebot3s merged vs one robot alone (Table 1's
-Fitness), over several seeds and worlds, every map made by REAL gmapping.
+Fitness), over several seeds and worlds, every map made by a real SLAM: rbpf_slam (ours, over
+MRPT's Rao-Blackwellized particle filter, the algorithm gmapping implements) or gmapping.
 
     python3 bench/accuracy.py [--seeds 5] [--first-seed 1] [--worlds home,intel] [--quick]
-                              [--work /tmp/mmm_accuracy] [--jobs 2] [--port 12500]
+                              [--slam rbpf|gmapping] [--work /tmp/mmm_accuracy] [--jobs 2] [--port 12500]
 
 For every world and seed:
 
 1. ``make_robot_bags --world W --seed S --robots 4 --sensors-only``: four Burgers (LDS-02) that
    start together and explore different regions (``team.bag``: scans, odometry and their TF
    only) and one robot exploring it all alone (``team_single.bag``), with the truth file;
-2. one real gmapping per robot, team robots and the lone robot: ``slam_gmapping_replay
-   --bag_filename BAG --scan_topic /tb3_k/scan --seed S`` with config/gmapping_lds02.yaml (the
-   Turtlebot3 settings) and the robot's frames (``tb3_k/base_footprint``, ``tb3_k/odom``,
-   ``tb3_k/map``). The replayer reads the bag itself and drops no scan; each run has its own
-   roscore on a free port (from ``--port``) and, when the bag is read, saves its latched last
-   ``/map`` (``scripts/save_map``) through ``--on_done``. Printed per robot: the scans in its bag
-   and the scans gmapping processed (its ``update frame`` lines);
+2. one SLAM run per robot, team robots and the lone robot: ``--slam rbpf`` (the default):
+   ``rbpf_slam_replay --bag_filename BAG --scan_topic /tb3_k/scan --seed S`` (built by ``make
+   build`` into the workspace) with config/rbpf_lds02.yaml (the Turtlebot3 LDS-02 settings under
+   gmapping's names) as ``/rbpf_slam/...``; ``--slam gmapping``: ``slam_gmapping_replay``, the same
+   flags, with config/gmapping_lds02.yaml as ``/slam_gmapping/...``, where ROS has gmapping
+   (elsewhere every row says INVALID and why). Either with the robot's frames
+   (``tb3_k/base_footprint``, ``tb3_k/odom``, ``tb3_k/map``). The replayer reads the bag itself and
+   drops no scan; each run has its own roscore on a free port (from ``--port``) and, when the bag
+   is read, saves its latched last ``/map`` (``scripts/save_map``) through ``--on_done``. Printed
+   per robot: the scans in its bag, the scans the SLAM processed (its ``update frame`` lines) and
+   its CPU seconds;
 3. scored against the world's ground truth (``lab/evaluate.py``: the paper's Fitness, Open3D ICP
    at 0.10 m): the single robot's map, our ``merge_maps`` on the four final maps, each robot's map
    alone (mean), the **rigid bound** (every robot's map placed at its own map's best fit to the
@@ -40,16 +45,19 @@ worst loss to the rigid bound L
 
 (one line; ``L`` = the largest rigid bound - merged over all seeds and worlds).
 
-A row whose condition was not created (gmapping missing, a robot's gmapping processed nothing or
+A row whose condition was not created (the SLAM missing, a robot's SLAM processed nothing or
 saved no map, a peer absent or failed, a merge that failed) says INVALID and why, not a number;
 a mean over it is INVALID too.
 
-Bags and gmapping maps are cached under ``--work``: the bags (``bags/WORLD-sSEED-BAGKEY``) keyed
-by world, seed, the arguments and the simulator's files; each robot's gmapping map
-(``gmapping/WORLD-sSEED-content-SHA1``) by what its bag holds (``content.json`` beside the bags:
-a digest of their messages, not of their files; ``bag_content_digest``), the robot, the gmapping
-config and binary. Bags remade alike by changed sources find the maps already made, and so do
-results of the earlier scheme, keyed by the bag key (``resolve_gmapping``: copied, never deleted).
+Bags and SLAM maps are cached under ``--work``: the bags (``bags/WORLD-sSEED-BAGKEY``) keyed
+by world, seed, the arguments and the simulator's files; each robot's map
+(``rbpf_slam/WORLD-sSEED-content-SHA1``, gmapping's in ``gmapping/...``) by what its bag holds
+(``content.json`` beside the bags: a digest of their messages, not of their files;
+``bag_content_digest``), the robot, the SLAM, its config and its binary: one SLAM's map is never
+taken for the other's. Bags remade alike by changed sources find the maps already made, and so do
+gmapping results of the earlier scheme, keyed by the bag key (``resolve_gmapping``: copied, never
+deleted). The JSON keeps gmapping's key names for the SLAM's runs (``gmapping``,
+``gmapping_cpu_s_sum``, ...); ``args.slam`` says which SLAM made them.
 A rerun only merges and scores again (about a minute). It runs at nice 10 (it renices itself; whatever it starts
 inherits that), at most ``--jobs`` (2) heavy steps at a time. Everything it starts is stopped on exit, also on Ctrl-C.
 
@@ -57,8 +65,8 @@ The worlds: ``home``, the project's own home (lab/home.py, written into ``--work
 the AWS small house read in place from ../shared/data, ``intel``, the Intel lab of ../shared/data.
 
 Writes bench/results/accuracy.{json,md,txt} (``--quick``: 1 seed, the home only, into
-accuracy_quick.*). Run it with Debian's /usr/bin/python3 and the workspace sourced
-(``make accuracy`` does both).
+accuracy_quick.*; ``--slam gmapping``: accuracy_gmapping.*, accuracy_quick_gmapping.*). Run it
+with Debian's /usr/bin/python3 and the workspace sourced (``make accuracy`` does both).
 """
 from __future__ import annotations
 
@@ -120,7 +128,18 @@ WORLDS = {
 }
 TEAM = ['tb3_0', 'tb3_1', 'tb3_2', 'tb3_3']
 SINGLE = 'single'
-GMAPPING_CONFIG = os.path.join(REPO, 'config', 'gmapping_lds02.yaml')
+# the SLAMs a run can map with (--slam; default rbpf): the replayer (every scan of a bag, the
+# same flags), the node name its private parameters are under, the settings for the Turtlebot3s,
+# its cache directory under --work, the name printed
+SLAMS: Dict[str, Dict[str, str]] = {
+    'rbpf': {'package': 'multi_map_merge', 'replay': 'rbpf_slam_replay', 'node': 'rbpf_slam',
+             'config': os.path.join(REPO, 'config', 'rbpf_lds02.yaml'), 'cache': 'rbpf_slam',
+             'label': 'rbpf_slam'},
+    'gmapping': {'package': 'gmapping', 'replay': 'slam_gmapping_replay', 'node': 'slam_gmapping',
+                 'config': os.path.join(REPO, 'config', 'gmapping_lds02.yaml'), 'cache': 'gmapping',
+                 'label': 'gmapping'},
+}
+DEFAULT_SLAM = 'rbpf'
 # the files whose code makes the bags (a change remakes them)
 SIM_SOURCES = [os.path.join(REPO, 'src', 'multi_map_merge', p) for p in
                ('lab/simulate.py', 'lab/robot_bags.py', 'lab/drives.py', 'ros/replay.py', 'lab/home.py',
@@ -130,6 +149,10 @@ BAG_ARGS = ['--robots', '4', '--sensors-only']
 MRPT_TOOL = os.path.join(HERE, 'mrpt_merge.py')      # MRPT's aligner, the project's own driver
 MEXPLORE_TOOL = os.path.join(HERE, 'peer.py')        # m-explore's node, where installed
 NICENESS = 10   # of this process and so of everything it starts (they inherit it)
+# the address space each SLAM run may take (GiB; SLAM_MEMORY_GB, 0: no limit): the machine is shared,
+# and a run whose particles' grids outgrow it fails alone (INVALID, naming the limit) instead of
+# waking the kernel's OOM killer
+SLAM_MEMORY_GB = float(os.environ.get('SLAM_MEMORY_GB', '4'))
 PY = '/usr/bin/python3' if os.path.exists('/usr/bin/python3') else sys.executable
 
 _print_lock = threading.Lock()
@@ -336,13 +359,26 @@ def key_of(doc: Dict[str, Any]) -> str:
     return hashlib.sha1(json.dumps(doc, sort_keys=True).encode()).hexdigest()[:10]
 
 
-def replay_binary() -> Optional[str]:
-    """slam_gmapping_replay of the gmapping ROS finds (the workspace's overlay or the system's)."""
+def replay_binary(slam: str = DEFAULT_SLAM) -> Optional[str]:
+    """The replayer of ``slam`` (SLAMS) that ROS finds: rbpf_slam_replay of our workspace
+    (``make build``), or slam_gmapping_replay of a gmapping ROS has (an overlay or the system's);
+    None when there is none."""
+    s = SLAMS[slam]
     for p in os.environ.get('CMAKE_PREFIX_PATH', '').split(':') + ['/opt/ros/noetic']:
-        exe = os.path.join(p, 'lib', 'gmapping', 'slam_gmapping_replay')
+        exe = os.path.join(p, 'lib', s['package'], s['replay'])
         if p and os.access(exe, os.X_OK):
             return exe
     return None
+
+
+def slam_missing(slam: str) -> str:
+    """Why ``slam`` cannot run here (its replayer was not found): one line for an INVALID row."""
+    if slam == 'gmapping':
+        return ('gmapping missing: ROS here has no gmapping (no lib/gmapping/slam_gmapping_replay under '
+                'CMAKE_PREFIX_PATH or /opt/ros/noetic; its source is gone and Debian has no package, '
+                'issue 47): use --slam rbpf')
+    return ('rbpf_slam missing: no lib/multi_map_merge/rbpf_slam_replay under CMAKE_PREFIX_PATH '
+            '(make build builds it; source the workspace)')
 
 
 def bag_scans(bag: str, topic: str) -> int:
@@ -479,24 +515,37 @@ def bag_contents(d: str, names: Tuple[str, ...] = BAG_FILES,
         return {n: doc[n] for n in names if n in doc}
 
 
-# ------------------------------------------------------------------------------ gmapping results by content
+# ------------------------------------------------------------------------------ SLAM results by content
+# (the functions keep gmapping's names: gmapping_dir, resolve_gmapping, run_gmapping's results)
 
 GMAPPING_FILES = ('.yaml', '.pgm', '.log', '.core.log')
 
 
-def gmapping_dir(work: str, world: str, seed: int, content: str) -> str:
-    """Where the gmapping runs on a bag of this content (its sha1, ``bag_contents``) are kept:
-    ``work``/gmapping/WORLD-sSEED-content-SHA1 (its first 12 hex digits; an old-scheme directory
-    is named WORLD-sSEED-BAGKEY)."""
-    return os.path.join(work, 'gmapping', '%s-s%d-content-%s' % (world, seed, content[:12]))
+def slam_of(doc: Dict[str, Any]) -> str:
+    """The SLAM a run's key document names; a document without 'slam' (written before rbpf_slam
+    existed) is gmapping's."""
+    return str(doc.get('slam', 'gmapping'))
+
+
+def gmapping_dir(work: str, world: str, seed: int, content: str, slam: str = 'gmapping') -> str:
+    """Where the runs of ``slam`` on a bag of this content (its sha1, ``bag_contents``) are kept:
+    ``work``/CACHE/WORLD-sSEED-content-SHA1 (CACHE: ``gmapping`` or ``rbpf_slam``, SLAMS; SHA1 its
+    first 12 hex digits; an old-scheme gmapping directory is named WORLD-sSEED-BAGKEY)."""
+    return os.path.join(work, SLAMS[slam]['cache'], '%s-s%d-content-%s' % (world, seed, content[:12]))
 
 
 def _same_run(args: Any, doc: Dict[str, Any]) -> bool:
-    """``args`` (a result's gmapping key document) and ``doc`` name the same run but for its
-    'bag' (an old-scheme bag key there, a content digest here)."""
+    """``args`` (a result's key document) and ``doc`` name the same run but for its 'bag' (an
+    old-scheme bag key there, a content digest here): the same SLAM (``slam_of``), robot, topic,
+    seed, config and binary."""
     if not isinstance(args, dict):
         return False
-    return ({k: v for k, v in args.items() if k != 'bag'} == {k: v for k, v in doc.items() if k != 'bag'})
+
+    def run(d):
+        out = {k: v for k, v in d.items() if k != 'bag'}
+        out['slam'] = slam_of(d)
+        return out
+    return run(args) == run(doc)
 
 
 def old_scheme_results(work: str, world: str, seed: int, robot: str, bag_file: str, content: str,
@@ -508,7 +557,10 @@ def old_scheme_results(work: str, world: str, seed: int, robot: str, bag_file: s
     its directory), whose key is that document's, and whose run is this one but for the bag (robot,
     topic, seed, gmapping config and binary), was made from ``bags/WORLD-sSEED-BAGKEY/BAG_FILE``;
     it belongs to that bag's content (``bag_contents``: read only from a complete bag directory,
-    digested once). A result whose bag directory is gone cannot be placed and is not used."""
+    digested once). A result whose bag directory is gone cannot be placed and is not used. Only
+    gmapping has results of the old scheme (``doc``'s SLAM, ``slam_of``): for rbpf_slam, []."""
+    if slam_of(doc) != 'gmapping':
+        return []
     gm_root, bag_root = os.path.join(work, 'gmapping'), os.path.join(work, 'bags')
     if not os.path.isdir(gm_root):
         return []
@@ -549,16 +601,18 @@ def _set_aside(prefix: str, key: Any) -> None:
 def resolve_gmapping(work: str, world: str, seed: int, robot: str, bag_file: str, content: str,
                      doc: Dict[str, Any], digest: Callable[[str], Dict[str, Any]] = bag_content_digest,
                      log: Optional[Callable[[str], None]] = None) -> Tuple[str, Optional[Dict[str, Any]]]:
-    """Where ``robot``'s gmapping of the bag ``bag_file`` of this content (``doc``: its key
-    document, 'bag' = ``content``) is kept, and its result when there is one: (prefix, meta or
-    None: to be run). Looked for in the content's directory (``gmapping_dir``), then among the
+    """Where ``robot``'s SLAM run (gmapping's or rbpf_slam's: ``doc``'s 'slam', ``slam_of``) on the
+    bag ``bag_file`` of this content (``doc``: its key document, 'bag' = ``content``) is kept, and
+    its result when there is one: (prefix, meta or None: to be run). The key document names the
+    SLAM and its binary, and each SLAM has a directory of its own: one SLAM's result is never
+    taken for the other's. Looked for in the content's directory (``gmapping_dir``), then among the
     old scheme's results (``old_scheme_results``): one found there is copied into the content's
     directory with its key rewritten (the new key, 'migrated_from' naming where it came from), so
     that every bag directory of this content, the old-named ones and ones remade by new sources,
     finds this one result. Nothing is deleted: the old result stays where it was (a run of the old
     code still finds it) and a stale result in the content's directory is set aside."""
     key = key_of(doc)
-    d = gmapping_dir(work, world, seed, content)
+    d = gmapping_dir(work, world, seed, content, slam_of(doc))
     os.makedirs(d, exist_ok=True)
     prefix = os.path.join(d, robot)
     meta = read_json(prefix + '.json')
@@ -586,13 +640,16 @@ def resolve_gmapping(work: str, world: str, seed: int, robot: str, bag_file: str
 
 def run_gmapping(exe: str, bag: str, topic: str, name: str, seed: int, config: str, prefix: str,
                  head: Dict[str, Any], timeout: float, port: int, ros_home: str,
-                 extra_params: Optional[Dict[str, Any]] = None) -> Dict[str, Any]:
-    """One real gmapping run: ``exe`` (slam_gmapping_replay) on ``topic`` of ``bag`` with the
-    settings of ``config`` (a gmapping YAML; ``extra_params`` over it) and ``name``'s frames, in
-    a roscore of its own (a free port from ``port``), saving its last map to ``prefix``.yaml
-    (``scripts/save_map``). Returns ``head`` + what it did (scans in the bag, processed, exit
-    code, times, map), with ``invalid`` naming why when it made no usable map; written to
-    ``prefix``.json last (its presence means the run is complete)."""
+                 extra_params: Optional[Dict[str, Any]] = None, slam: str = 'gmapping') -> Dict[str, Any]:
+    """One real SLAM run: ``exe`` (``slam``'s replayer, SLAMS: rbpf_slam_replay or
+    slam_gmapping_replay, the same flags) on ``topic`` of ``bag`` with the settings of ``config``
+    (gmapping's parameter names; ``extra_params`` over it) under the node's name and ``name``'s
+    frames, in a roscore of its own (a free port from ``port``), saving its last map to
+    ``prefix``.yaml (``scripts/save_map``). Returns ``head`` + what it did (scans in the bag,
+    processed, for rbpf_slam those without TF, exit code, times, map), with ``invalid`` naming why
+    when it made no usable map; written to ``prefix``.json last (its presence means the run is
+    complete)."""
+    label, node = SLAMS[slam]['label'], SLAMS[slam]['node']
     for ext in ('.yaml', '.pgm', '.log', '.json', '.core.log'):
         if os.path.exists(prefix + ext):
             os.remove(prefix + ext)
@@ -602,13 +659,16 @@ def run_gmapping(exe: str, bag: str, topic: str, name: str, seed: int, config: s
     with open(config) as f:
         settings = dict(yaml.safe_load(f) or {})
     settings.update(extra_params or {})
-    params = {'/slam_gmapping/%s' % k: v for k, v in settings.items()}
-    params.update({'/slam_gmapping/base_frame': '%s/base_footprint' % name,
-                   '/slam_gmapping/odom_frame': '%s/odom' % name,
-                   '/slam_gmapping/map_frame': '%s/map' % name})
+    params = {'/%s/%s' % (node, k): v for k, v in settings.items()}
+    params.update({'/%s/base_frame' % node: '%s/base_footprint' % name,
+                   '/%s/odom_frame' % node: '%s/odom' % name,
+                   '/%s/map_frame' % node: '%s/map' % name})
     on_done = ' '.join(shlex.quote(x) for x in [PY, os.path.join(REPO, 'scripts', 'save_map'),
                                                 '-f', prefix, '--topic', '/map', '--timeout', '60'])
     cmd = [exe, '--bag_filename', bag, '--scan_topic', topic, '--seed', str(seed), '--on_done', on_done]
+    prlimit = shutil.which('prlimit')
+    if SLAM_MEMORY_GB > 0 and prlimit:
+        cmd = [prlimit, '--as=%d' % int(SLAM_MEMORY_GB * (1 << 30)), '--'] + cmd
     with Roscore(port, prefix + '.core.log', ros_home) as core:
         core.set_params(params)
         r = run_timed(cmd, prefix + '.log', core.env, timeout)
@@ -616,22 +676,31 @@ def run_gmapping(exe: str, bag: str, topic: str, name: str, seed: int, config: s
         log = f.read()
     processed = len(re.findall(r'^update frame \d+', log, re.M))
     dropped = log.count('Dropping old scan')
+    # rbpf_slam_replay's last line: R scans received, P processed, K without TF
+    last = re.findall(r'^rbpf_slam_replay: (\d+) scans received, (\d+) processed, (\d+) without TF', log, re.M)
     meta = dict(head)
-    meta.update({'name': name, 'bag': bag, 'topic': topic,
+    if last:
+        meta.update(received=int(last[-1][0]), without_tf=int(last[-1][2]))
+    meta.update({'slam': slam, 'name': name, 'bag': bag, 'topic': topic,
                  'scans': scans, 'processed': processed, 'dropped': dropped, 'rc': r['rc'],
                  'wall_s': r['wall_s'], 'cpu_s': r['cpu_s'], 'map': prefix + '.yaml', 'log': prefix + '.log'})
     why = None
-    if r['timed_out']:
-        why = 'gmapping did not finish within %.0f s' % timeout
+    out_of_memory = 'std::bad_alloc' in log or r['rc'] == -9
+    if out_of_memory:
+        why = ('%s ran out of memory (exit %s: %s; its limit %s GiB, SLAM_MEMORY_GB) after %d of %d scans (%s)'
+               % (label, r['rc'], 'std::bad_alloc' if 'std::bad_alloc' in log else 'killed', SLAM_MEMORY_GB,
+                  processed, scans, prefix + '.log'))
+    elif r['timed_out']:
+        why = '%s did not finish within %.0f s' % (label, timeout)
     elif processed == 0:
-        why = 'gmapping processed no scan of %d (%s)' % (scans, prefix + '.log')
+        why = '%s processed no scan of %d (%s)' % (label, scans, prefix + '.log')
     elif r['rc'] != 0:
-        why = 'slam_gmapping_replay exited %s (%s)' % (r['rc'], prefix + '.log')
+        why = '%s exited %s (%s)' % (os.path.basename(exe), r['rc'], prefix + '.log')
     elif not os.path.exists(prefix + '.yaml'):
         why = 'no map saved (%s)' % (prefix + '.log')
     if why:
         meta['invalid'] = why
-    if not _stopping.is_set():
+    if not _stopping.is_set() and not out_of_memory:   # (out of memory: tried again next time)
         write_json(meta_path, meta)           # last, at once: its presence means the run is complete
     meta['cached'] = False
     return meta
@@ -660,7 +729,7 @@ def peers_available(build: bool) -> Dict[str, Optional[str]]:
 # ------------------------------------------------------------------------------ a condition
 
 class Condition:
-    """One world and seed: its bags, its five gmapping runs, its scores."""
+    """One world and seed: its bags, its five SLAM runs (``self.gm``), its scores."""
 
     def __init__(self, index: int, world: str, seed: int):
         self.index, self.world, self.seed = index, world, seed
@@ -704,7 +773,7 @@ class Condition:
                 '--world', os.path.abspath(self.world_yaml), '--seed', str(self.seed)] + BAG_ARGS)
             self.bag.update(wall_s=r['wall_s'], cpu_s=r['cpu_s'], cached=False)
             say('%s %s: bags made in %.0f s' % (stamp(), self.name, r['wall_s']))
-        # what the bags hold: the gmapping runs are keyed by it (digested once, kept in content.json)
+        # what the bags hold: the SLAM runs are keyed by it (digested once, kept in content.json)
         contents = bag_contents(d, log=self.log)
         if contents is None or any(n not in contents for n in BAG_FILES):
             raise RuntimeError('bags incomplete in %s (%s)' % (d, ', '.join(n for n in BAG_FILES
@@ -718,17 +787,18 @@ class Condition:
     def log(self, line: str) -> None:
         say('%s %s: %s' % (stamp(), self.name, line))
 
-    # --- 2. one robot's gmapping
+    # --- 2. one robot's SLAM (--slam: rbpf_slam or gmapping)
     def gmapping(self, robot: str) -> None:
         self.started()
         res = self._gmapping(robot)
         with self.lock:
             self.gm[robot] = res
+        label = SLAMS[ARGS.slam]['label']
         if res.get('invalid'):
-            say('%s %s: gmapping %s INVALID: %s' % (stamp(), self.name, robot, res['invalid']))
+            say('%s %s: %s %s INVALID: %s' % (stamp(), self.name, label, robot, res['invalid']))
         else:
-            say('%s %s: gmapping %-6s %4d scans in its bag, %4d processed%s, %s' % (
-                stamp(), self.name, robot, res['scans'], res['processed'],
+            say('%s %s: %s %-6s %4d scans in its bag, %4d processed%s, %s' % (
+                stamp(), self.name, label, robot, res['scans'], res['processed'],
                 ', %d dropped' % res['dropped'] if res.get('dropped') else '',
                 'cached' if res.get('cached') else '%.0f s wall, %s CPU s' % (res['wall_s'], res['cpu_s'])))
         if res.get('migrated_now'):
@@ -736,9 +806,10 @@ class Condition:
                 % (res['migrated_from']['meta'], os.path.dirname(res['map'])))
 
     def _gmapping(self, robot: str) -> Dict[str, Any]:
-        exe = replay_binary()
+        slam = ARGS.slam
+        exe = replay_binary(slam)
         if exe is None:
-            return {'invalid': 'gmapping missing: no slam_gmapping_replay (make gmapping builds it)'}
+            return {'invalid': slam_missing(slam)}
         if robot == SINGLE:
             bag_file, name = 'team_single.bag', self.truth_doc().get('single', {}).get('name', 'tb3_0')
         else:
@@ -748,8 +819,9 @@ class Condition:
         topic = '/%s/scan' % name
         st = os.stat(exe)
         # keyed by what the bag holds, not by the sources that made it (a bag remade alike finds it)
-        doc = {'bag': content, 'robot': robot, 'topic': topic, 'gmapping_seed': self.seed,
-               'config': file_digest(GMAPPING_CONFIG), 'binary': [exe, st.st_size, int(st.st_mtime)]}
+        # and by the SLAM, its config and its binary ('gmapping_seed': the SLAM's seed, the old name)
+        doc = {'bag': content, 'robot': robot, 'topic': topic, 'gmapping_seed': self.seed, 'slam': slam,
+               'config': file_digest(SLAMS[slam]['config']), 'binary': [exe, st.st_size, int(st.st_mtime)]}
         key = key_of(doc)
         prefix, meta = resolve_gmapping(ARGS.work, self.world, self.seed, robot, bag_file, content, doc,
                                         log=self.log)
@@ -758,9 +830,9 @@ class Condition:
         td = self.truth_doc()
         info = td.get('single', {}) if robot == SINGLE else td['robots'].get(name, {})
         timeout = 600.0 + 4.0 * float(info.get('duration_s', 1800.0))
-        return run_gmapping(exe, bag, topic, name, self.seed, GMAPPING_CONFIG, prefix,
+        return run_gmapping(exe, bag, topic, name, self.seed, SLAMS[slam]['config'], prefix,
                             {'key': key, 'args': doc, 'robot': robot}, timeout, ARGS.port,
-                            os.path.join(ARGS.work, 'ros_home'))
+                            os.path.join(ARGS.work, 'ros_home'), slam=slam)
 
     # --- 3. merges and scores
     def score(self) -> None:
@@ -957,21 +1029,25 @@ class Condition:
                 td.get('single', {}).get('distance_m', float('nan'))))
         except Exception:                         # noqa: BLE001 (the truth file's trouble is in the rows)
             pass
-        lines.append('  time: %.0f s span; bags %s; gmapping %.0f s wall, %.0f CPU s (summed over runs%s); '
+        label = SLAMS[ARGS.slam]['label']
+        lines.append('  time: %.0f s span; bags %s; %s %.0f s wall, %.0f CPU s (summed over runs%s); '
                      'scoring %.0f s'
-                     % (t['span_s'], 'cached' if t['cached']['bags'] else '%s s' % t['bags_wall_s'],
+                     % (t['span_s'], 'cached' if t['cached']['bags'] else '%s s' % t['bags_wall_s'], label,
                         t['gmapping_wall_s_sum'], t['gmapping_cpu_s_sum'],
                         ', cached: ' + ' '.join(t['cached']['gmapping']) if t['cached']['gmapping'] else '',
                         res.get('score_wall_s') or 0))
         for r in [SINGLE] + TEAM:
             g = self.gm.get(r, {})
-            label = 'lone robot' if r == SINGLE else r
+            who = 'lone robot' if r == SINGLE else r
             if 'scans' in g:
-                lines.append('  gmapping %-10s %4d scans in its bag, %4d processed (update frame)%s%s' % (
-                    label, g['scans'], g['processed'], ', %d dropped' % g['dropped'] if g.get('dropped') else '',
+                lines.append('  %s %-10s %4d scans in its bag, %4d processed (update frame)%s%s%s%s' % (
+                    label, who, g['scans'], g['processed'],
+                    ', %d dropped' % g['dropped'] if g.get('dropped') else '',
+                    ', %d without TF' % g['without_tf'] if g.get('without_tf') else '',
+                    ', %s CPU s' % g['cpu_s'] if g.get('cpu_s') is not None else '',
                     ': INVALID: %s' % g['invalid'] if g.get('invalid') else ''))
             else:
-                lines.append('  gmapping %-10s INVALID: %s' % (label, g.get('invalid', 'not run')))
+                lines.append('  %s %-10s INVALID: %s' % (label, who, g.get('invalid', 'not run')))
         det = res.get('details', {})
         for r in ROWS:
             v = rows.get(r, Invalid('not run'))
@@ -1112,7 +1188,7 @@ class Scheduler:
 
 
 def plan(cond: Condition, sched: Scheduler) -> None:
-    """The chain of one condition: bags -> five gmapping runs (the lone robot first, the longest)
+    """The chain of one condition: bags -> five SLAM runs (the lone robot first, the longest)
     -> merges and scores."""
     i = cond.index
     left = {'n': 1 + len(TEAM)}
@@ -1125,7 +1201,8 @@ def plan(cond: Condition, sched: Scheduler) -> None:
                 if not _stopping.is_set():
                     traceback.print_exc()
                 with cond.lock:
-                    cond.gm[robot] = {'invalid': 'gmapping run failed: %s: %s' % (type(e).__name__, e)}
+                    cond.gm[robot] = {'invalid': '%s run failed: %s: %s' % (SLAMS[ARGS.slam]['label'],
+                                                                           type(e).__name__, e)}
             with cond.lock:
                 left['n'] -= 1
                 last = left['n'] == 0
@@ -1183,7 +1260,8 @@ def write_results(final: bool = False) -> Dict[str, Any]:
         doc = {'complete': final and len(done) == len(CONDITIONS), 'line': line,
                'args': {'seeds': ARGS.seed_list, 'worlds': ARGS.world_list, 'work': ARGS.work,
                         'jobs': ARGS.jobs, 'bag_args': BAG_ARGS,
-                        'gmapping_config': os.path.relpath(GMAPPING_CONFIG, REPO)},
+                        'slam': ARGS.slam, 'slam_binary': replay_binary(ARGS.slam),
+                        'slam_config': os.path.relpath(SLAMS[ARGS.slam]['config'], REPO)},
                'worlds': {w: {'title': WORLDS[w][1], 'truth': WORLDS[w][0],
                               'rows': {r: {'mean': to_json(d[r]['mean']), 'worst': to_json(d[r]['worst'])}
                                        for r in ROWS},
@@ -1198,7 +1276,8 @@ def write_results(final: bool = False) -> Dict[str, Any]:
         with open(os.path.join(ARGS.results, ARGS.stem + '.json'), 'w') as f:
             json.dump(doc, f, indent=1, default=_json_default)
         titles = {w: WORLDS[w][1] for w in WORLDS}
-        md = ['# Accuracy: 4 Turtlebot3s merged vs 1 alone, real gmapping (bench/accuracy.py)', '',
+        md = ['# Accuracy: 4 Turtlebot3s merged vs 1 alone, every map by %s (bench/accuracy.py --slam %s)'
+              % (SLAMS[ARGS.slam]['label'], ARGS.slam), '',
               'Fitness (Open3D ICP at 0.10 m against the ground truth, the paper\'s Table 1); '
               '(k/4): robots the merge placed. %s%s' % (
                   'Complete run' if doc['complete']
@@ -1259,7 +1338,11 @@ def parse_args(argv: Optional[List[str]] = None):
                     help='comma-separated: %s (default home,intel)' % ', '.join(WORLDS))
     ap.add_argument('--quick', action='store_true', help='1 seed, the home only (results in accuracy_quick.*)')
     ap.add_argument('--work', default='/tmp/mmm_accuracy',
-                    help='cache of bags and gmapping maps (default /tmp/mmm_accuracy)')
+                    help='cache of bags and SLAM maps (default /tmp/mmm_accuracy)')
+    ap.add_argument('--slam', choices=sorted(SLAMS), default=DEFAULT_SLAM,
+                    help='the SLAM making every map: rbpf (rbpf_slam_replay, config/rbpf_lds02.yaml; the '
+                         'default) or gmapping (slam_gmapping_replay, config/gmapping_lds02.yaml, where ROS has '
+                         'gmapping: elsewhere every row is INVALID)')
     ap.add_argument('--results', default=os.path.join(HERE, 'results'), help='where accuracy.{json,md,txt} go')
     ap.add_argument('--jobs', type=int, default=2, help='heavy steps at once (1 or 2; default 2)')
     ap.add_argument('--port', type=int, default=12500, help='first port tried for the roscores (default 12500)')
@@ -1278,7 +1361,7 @@ def parse_args(argv: Optional[List[str]] = None):
         ap.error('--seeds must be at least 1')
     a.jobs = max(1, min(2, a.jobs))
     a.seed_list = list(range(a.first_seed, a.first_seed + a.seeds))
-    a.stem = 'accuracy_quick' if a.quick else 'accuracy'
+    a.stem = ('accuracy_quick' if a.quick else 'accuracy') + ('' if a.slam == DEFAULT_SLAM else '_' + a.slam)
     a.work = os.path.abspath(a.work)
     return a
 
@@ -1301,11 +1384,12 @@ def main(argv: Optional[List[str]] = None) -> int:
         for w in ARGS.world_list:
             if not os.path.exists(WORLDS[w][0]):
                 say('accuracy: world %s: %s is absent: its rows are INVALID' % (w, WORLDS[w][0]))
-        exe = replay_binary()
+        exe = replay_binary(ARGS.slam)
         say('accuracy: %d seeds (%s) x %d worlds (%s); work dir %s; %d jobs at once, nice 10'
             % (len(ARGS.seed_list), ', '.join(map(str, ARGS.seed_list)), len(ARGS.world_list),
                ', '.join(ARGS.world_list), ARGS.work, ARGS.jobs),
-            'accuracy: gmapping: %s' % (exe or 'NONE (no slam_gmapping_replay: every row is INVALID; make gmapping)'))
+            'accuracy: SLAM %s: %s, %s' % (ARGS.slam, exe or 'NONE: every row is INVALID: %s' % slam_missing(ARGS.slam),
+                                           os.path.relpath(SLAMS[ARGS.slam]['config'], REPO)))
         PEERS = peers_available(build=not ARGS.no_build)
         for p, why in PEERS.items():
             say('accuracy: peer %s: %s' % (p, 'ready' if why is None else 'INVALID: ' + why))

@@ -3,7 +3,7 @@ the seeds, the loss to the rigid bound, the tables and the summary line. No ROS,
 unit-tested in test/unit/bench/test_accuracy_summary.py.
 
 A figure is a float (a Fitness, 0..1) or an :class:`Invalid` naming why the condition behind it
-was not created (gmapping missing, a robot's gmapping processed nothing, a peer absent, a merge
+was not created (the SLAM missing, a robot's SLAM processed nothing, a peer absent, a merge
 that failed, ...). Anything computed from an INVALID figure is INVALID: a mean over the seeds
 with one seed missing would be a mean over other seeds, not the figure asked for.
 """
@@ -107,7 +107,7 @@ def worst_loss(losses: Sequence[Figure]) -> Figure:
 
 def group_reasons(pairs: Sequence[Any]) -> str:
     """``[(robot, why), ...]`` as one reason, robots with the same reason named together:
-    ``tb3_0, tb3_2: gmapping processed no scan; tb3_1: no map saved``."""
+    ``tb3_0, tb3_2: rbpf_slam processed no scan; tb3_1: no map saved``."""
     order: List[str] = []
     who: Dict[str, List[str]] = {}
     for name, why in pairs:

@@ -178,3 +178,75 @@ def summary_line(s: Dict[str, Any]) -> str:
     return ('bend sweep: %d placements in %d cases; within 95%% ellipse %s%%; off %d, flagged weak %d of them; '
             'worst %s m (2-sigma %s m)' % (s['placements'], s['cases'], p, s['off'], s['off_weak'],
                                            metres(s['worst_m']), metres(s['worst_sigma2_m'])))
+
+
+# ------------------------------------------------------------------------------ the robots' own maps
+
+
+def own_maps(cases: Iterable[Dict[str, Any]]) -> Dict[str, Any]:
+    """Per log, each robot's final SLAM map against the log's ground truth (a case's ``own_fit``:
+    {robot: {'fitness', 'from_start_pose', ...}}) and what its SLAM run cost (the case's
+    ``gmapping``: {robot: {'cpu_s', 'processed', 'scans'}}): {'logs': {log: {'maps', 'mean',
+    'worst', 'from_start_mean', 'cpu_s_mean', 'cpu_s_max', 'processed', 'scans', 'cases'}},
+    'overall': {...the same over every log}, 'unscored': [(case, robot, why)]}. A map that could
+    not be scored, or a robot whose SLAM run failed, is named in ``unscored`` and counted in no
+    figure (a log with no scored map has None for its figures)."""
+    per: Dict[str, Dict[str, Any]] = {}
+    unscored: List[List[str]] = []
+
+    def blank() -> Dict[str, Any]:
+        return {'fit': [], 'start': [], 'cpu': [], 'processed': 0, 'scans': 0, 'cases': set()}
+    allx = blank()
+    for c in cases:
+        log = str(c.get('log') or c.get('name', '?'))
+        x = per.setdefault(log, blank())
+        fits = c.get('own_fit') or {}
+        for r, g in sorted((c.get('gmapping') or {}).items()):
+            f = fits.get(r)
+            if g.get('invalid'):
+                why = g['invalid']
+            elif f is None:
+                why = 'not scored'
+            else:
+                why = f.get('invalid')
+            if why or f is None or f.get('fitness') is None:
+                unscored.append([str(c.get('name', log)), r, str(why or 'no Fitness')])
+                continue
+            for y in (x, allx):
+                y['fit'].append(float(f['fitness']))
+                if f.get('from_start_pose') is not None:
+                    y['start'].append(float(f['from_start_pose']))
+                if g.get('cpu_s') is not None:
+                    y['cpu'].append(float(g['cpu_s']))
+                y['processed'] += int(g.get('processed') or 0)
+                y['scans'] += int(g.get('scans') or 0)
+                y['cases'].add(str(c.get('name', log)))
+
+    def fig(y: Dict[str, Any]) -> Dict[str, Any]:
+        def m(v):
+            return float(np.mean(v)) if v else None
+        return {'maps': len(y['fit']), 'cases': len(y['cases']), 'mean': m(y['fit']),
+                'worst': min(y['fit']) if y['fit'] else None, 'from_start_mean': m(y['start']),
+                'cpu_s_mean': m(y['cpu']), 'cpu_s_max': max(y['cpu']) if y['cpu'] else None,
+                'processed': y['processed'], 'scans': y['scans']}
+    return {'logs': {k: fig(v) for k, v in per.items()}, 'overall': fig(allx), 'unscored': unscored}
+
+
+def own_maps_lines(o: Dict[str, Any], label: str = 'SLAM') -> List[str]:
+    """``own_maps`` as a table: per log and over all, the Fitness of the robots' own maps (mean,
+    worst), CPU s per robot (mean, largest), scans processed of those in the bags."""
+    def f(v, p='%.4f'):
+        return '-' if v is None else p % v
+    out = ['robots\' own %s maps against the ground truth (Fitness, best of the start pose and 8 headings):'
+           % label,
+           '  %-14s %5s %5s %8s %8s %12s %14s %9s' % ('log', 'cases', 'maps', 'mean', 'worst', 'from start',
+                                                    'CPU s/robot', 'processed')]
+    rows = sorted(o['logs'].items()) + [('all', o['overall'])]
+    for k, y in rows:
+        out.append('  %-14s %5d %5d %8s %8s %12s %14s %9s' % (
+            k, y['cases'], y['maps'], f(y['mean']), f(y['worst']), f(y['from_start_mean']),
+            '%s (max %s)' % (f(y['cpu_s_mean'], '%.1f'), f(y['cpu_s_max'], '%.1f')),
+            '%d/%d' % (y['processed'], y['scans'])))
+    if o['unscored']:
+        out.append('  not scored: %s' % '; '.join('%s %s: %s' % tuple(u) for u in o['unscored']))
+    return out

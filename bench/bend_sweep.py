@@ -1,8 +1,10 @@
 #!/usr/bin/env python3
-"""Do the placements' covariances cover the real error, on REAL gmapping maps of REAL laser logs?
+"""Do the placements' covariances cover the real error, on REAL SLAM maps of REAL laser logs?
+And how well does each robot's SLAM map fit the log's ground truth?
 
     python3 bench/bend_sweep.py [--logs aces,fhw,...] [--robots 3,4] [--seeds 1,2] [--cases 'aces-*']
-                                [--config KEY=VALUE ...] [--merge-only] [--no-fit] [--stem bend_sweep]
+                                [--slam rbpf|gmapping] [--config KEY=VALUE ...] [--slam-param KEY=VALUE ...]
+                                [--merge-only] [--no-fit] [--stem bend_sweep]
                                 [--work /tmp/mmm_bend] [--jobs 1] [--port 13500]
 
 A case is one CARMEN log (``../shared/data/carmen/LOG-corrected.log.gz``) cut into N robots with
@@ -12,9 +14,11 @@ one seed, named ``LOG-Nr-sS`` (``--cases`` takes comma-separated fnmatch pattern
    (lab/simulate.py ``simulate_carmen``): the log cut into N consecutive stretches grown by 25%
    at both ends, real scans, odometry with the simulator's Burger-like errors on top of the
    corrected poses; its truth file holds each robot's true start pose in the log's frame;
-2. one REAL gmapping per robot (bench/accuracy.py ``run_gmapping``: ``slam_gmapping_replay``,
-   every scan, its own roscore), settings config/gmapping_default.yaml with ``GMAPPING_PARAMS``
-   over it (see there: the CARMEN logs' SICK laser, not a Turtlebot3's LDS-02);
+2. one real SLAM run per robot (bench/accuracy.py ``run_gmapping``, every scan, its own roscore):
+   ``--slam rbpf`` (the default) ``rbpf_slam_replay``, ``--slam gmapping`` ``slam_gmapping_replay``
+   where ROS has gmapping (elsewhere every case is INVALID and says why); either with
+   config/gmapping_default.yaml (gmapping's defaults, 30 particles) and ``SLAM_PARAMS`` over it
+   (see there: the CARMEN logs' SICK laser, not a Turtlebot3's LDS-02);
 3. one ``MapMerger.estimate()`` on the final maps (``MergeConfig(reference_robot='tb3_0',
    workers=1)`` + ``--config``), and per placed robot (``MapMerger.status()``): its error
    against the truth (its true start pose relative to the reference's), the reported 2-sigma
@@ -24,21 +28,28 @@ one seed, named ``LOG-Nr-sS`` (``--cases`` takes comma-separated fnmatch pattern
    also counted at ``OFF_WIDE``, 0.2 m or 2 degrees). Unless ``--no-fit``, also the error against
    the truth by the maps' best rigid fits to the ground-truth map (lab/evaluate.py through
    accuracy.py ``best_score``; the fit of the reference's map against the fit of the robot's):
-   what is left of the error when a map's own bend is not counted as the merger's.
+   what is left of the error when a map's own bend is not counted as the merger's. Each robot's
+   final map's Fitness against the ground truth (lab/evaluate.py through accuracy.py
+   ``best_score``: from its robot's known start and from the eight headings of
+   ``best_fit_score``, the best kept; ``own_fit`` per case in the JSON, per log mean and worst in
+   ``own_maps`` with the SLAM's CPU seconds and its scans processed of those in the bags).
 
 The last line printed::
 
     bend sweep: N placements in C cases; within 95% ellipse P%; off K, flagged weak W of them; worst E m (2-sigma S m)
 
-(P over the placements with a covariance, 3 dof). A case whose bags or gmapping failed is
+(P over the placements with a covariance, 3 dof). A case whose bags or SLAM failed is
 INVALID with why, never a number, and counted in no figure.
 
-Bags, gmapping maps and best fits are cached under ``--work`` (default /tmp/mmm_bend), keyed by
-their inputs (log, seed, robots, the simulator's sources, the gmapping settings and binary): a
-rerun only merges (seconds per case), e.g. after a change of core/covariance.py; ``--merge-only``
-never runs gmapping (a case without cached maps is INVALID). Runs at nice 15, ``--jobs`` (1)
-heavy steps at a time; everything it starts is stopped on exit. Writes
-bench/results/STEM.{json,txt} (``--stem``, default bend_sweep). Run it with Debian's
+Bags, SLAM maps and best fits are cached under ``--work`` (default /tmp/mmm_bend), keyed by
+their inputs (log, seed, robots, the simulator's sources; the SLAM, its settings and binary;
+rbpf_slam's maps in ``rbpf_slam/``, gmapping's in ``gmapping/``): a rerun only merges (seconds per
+case), e.g. after a change of core/covariance.py; ``--merge-only`` never runs a SLAM (a case
+without cached maps is INVALID). Runs at nice 15, ``--jobs`` (1) heavy steps at a time;
+everything it starts is stopped on exit. Writes bench/results/STEM.{json,txt} (``--stem``,
+default bend_sweep; bend_sweep_gmapping with ``--slam gmapping``). The JSON keeps gmapping's key
+names for the SLAM's runs (``gmapping``, ``gmapping_params``, ...); ``args.slam`` says which
+SLAM made them. Run it with Debian's
 /usr/bin/python3 and the workspace sourced (``make bend-sweep ARGS=...`` does both).
 """
 from __future__ import annotations
@@ -59,8 +70,15 @@ REPO = os.path.dirname(HERE)
 sys.path.insert(0, HERE)
 sys.path.insert(0, os.path.join(REPO, 'src'))
 
-import accuracy as acc  # noqa: E402  (processes, roscores, cache keys, gmapping runs, scheduler)
-from bend_summary import placement_record, relative, summarize, summary_lines  # noqa: E402
+import accuracy as acc  # noqa: E402  (processes, roscores, cache keys, SLAM runs, scheduler)
+from bend_summary import (  # noqa: E402
+    own_maps,
+    own_maps_lines,
+    placement_record,
+    relative,
+    summarize,
+    summary_lines,
+)
 
 DATA = os.path.join(acc.SHARED, 'data')
 # the logs of the default sweep, cheapest first (FLASER records, i.e. scans, and seconds of log:
@@ -69,12 +87,13 @@ DATA = os.path.join(acc.SHARED, 'data')
 # also usable: intel 911 / 2684, freiburg-079 4792 / 1062 (costly). Not usable: orebro and
 # freiburg-campus (every timestamp 0), belgioioso, csail and infinite-corridor (timestamps
 # written with 6 digits: 1000 s steps): their robots' scans all fall at one instant, and gmapping
-# drops them (a case says INVALID)
+# drops them (a case says INVALID). (Those figures are gmapping's, 2026-12-02.)
 LOGS = ['seattle', 'freiburg-101', 'edmonton', 'aces', 'fhw', 'acapulco']
-# a robot's gmapping that dropped more than this share of its bag's scans ("Dropping old scan")
-# made no map of its stretch: INVALID
+# a robot's SLAM that dropped more than this share of its bag's scans (gmapping's "Dropping old
+# scan", rbpf_slam_replay's scans without TF) made no map of its stretch: INVALID
 MAX_DROPPED = 0.1
-GMAPPING_CONFIG = os.path.join(REPO, 'config', 'gmapping_default.yaml')
+# gmapping's defaults, for either SLAM (rbpf_slam reads gmapping's names)
+SLAM_CONFIG = os.path.join(REPO, 'config', 'gmapping_default.yaml')
 # over gmapping_default.yaml (gmapping's own settings, made for a SICK laser like the logs': 30
 # particles, 0.05 m cells, linearUpdate 1 m, angularUpdate 0.5 rad; a map every 2 s): the logs'
 # SICK LMS reads to 80 m, make_robot_bags keeps returns under 40 m (its scans' range_max), and
@@ -82,7 +101,7 @@ GMAPPING_CONFIG = os.path.join(REPO, 'config', 'gmapping_default.yaml')
 # heading error of half a degree moves by at most 0.17 m. Measured on intel's first of 3 robots
 # (379 scans): 52 CPU s at 20 m, 48 at 40 m (no saving), maps alike. maxRange stays gmapping's
 # default (range_max - 0.01).
-GMAPPING_PARAMS: Dict[str, Any] = {'maxUrange': 20.0}
+SLAM_PARAMS: Dict[str, Any] = {'maxUrange': 20.0}
 NICENESS = 15
 REFERENCE = 'tb3_0'
 
@@ -100,7 +119,7 @@ def truth_map_path(log: str) -> str:
 
 
 class Case:
-    """One log cut into ``n`` robots with one seed: bags, n gmapping runs, one merge."""
+    """One log cut into ``n`` robots with one seed: bags, n SLAM runs (``self.gm``), one merge."""
 
     def __init__(self, index: int, log: str, n: int, seed: int):
         self.index, self.log, self.n, self.seed = index, log, n, seed
@@ -145,31 +164,35 @@ class Case:
         from multi_map_merge.lab.evaluate import load_truth
         return load_truth(self.bag['truth'])
 
-    # --- 2. one robot's gmapping
+    # --- 2. one robot's SLAM
     def gmapping(self, robot: str) -> None:
         res = self._gmapping(robot)
         with self.lock:
             self.gm[robot] = res
+        label = acc.SLAMS[ARGS.slam]['label']
         if res.get('invalid'):
-            say('%s %s: gmapping %s INVALID: %s' % (acc.stamp(), self.name, robot, res['invalid']))
+            say('%s %s: %s %s INVALID: %s' % (acc.stamp(), self.name, label, robot, res['invalid']))
         elif not res.get('cached'):
-            say('%s %s: gmapping %s %4d scans in its bag, %4d processed, %.0f s wall, %s CPU s' % (
-                acc.stamp(), self.name, robot, res['scans'], res['processed'], res['wall_s'], res['cpu_s']))
+            say('%s %s: %s %s %4d scans in its bag, %4d processed, %.0f s wall, %s CPU s' % (
+                acc.stamp(), self.name, label, robot, res['scans'], res['processed'], res['wall_s'], res['cpu_s']))
 
     def _gmapping(self, robot: str) -> Dict[str, Any]:
         meta = self._gmapping_run(robot)
-        if not meta.get('invalid') and meta.get('dropped', 0) > MAX_DROPPED * max(1, meta.get('scans', 0)):
-            meta = dict(meta, invalid='gmapping dropped %d of %d scans (%d processed; %s)' % (
-                meta['dropped'], meta['scans'], meta['processed'], meta.get('log')))
+        lost = (meta.get('dropped') or 0) + (meta.get('without_tf') or 0)
+        if not meta.get('invalid') and lost > MAX_DROPPED * max(1, meta.get('scans', 0)):
+            meta = dict(meta, invalid='%s dropped %d of %d scans (%d processed; %s)' % (
+                acc.SLAMS[ARGS.slam]['label'], lost, meta['scans'], meta['processed'], meta.get('log')))
         return meta
 
     def _gmapping_run(self, robot: str) -> Dict[str, Any]:
-        exe = acc.replay_binary()
+        slam = ARGS.slam
+        exe = acc.replay_binary(slam)
         topic = '/%s/scan' % robot
-        d = os.path.join(ARGS.work, 'gmapping', '%s-%s' % (self.name, self.bag['key']))
+        # each SLAM's maps in a directory of its own, keyed by the SLAM and its binary too
+        d = os.path.join(ARGS.work, acc.SLAMS[slam]['cache'], '%s-%s' % (self.name, self.bag['key']))
         prefix = os.path.join(d, robot)
-        doc = {'bag': self.bag['key'], 'robot': robot, 'topic': topic, 'gmapping_seed': self.seed,
-               'config': acc.file_digest(GMAPPING_CONFIG), 'params': ARGS.gmapping_params}
+        doc = {'bag': self.bag['key'], 'robot': robot, 'topic': topic, 'gmapping_seed': self.seed, 'slam': slam,
+               'config': acc.file_digest(SLAM_CONFIG), 'params': ARGS.gmapping_params}
         if exe is not None:
             st = os.stat(exe)
             doc['binary'] = [exe, st.st_size, int(st.st_mtime)]
@@ -181,18 +204,22 @@ class Case:
                 meta['cached'] = True
                 return meta
         if ARGS.merge_only:
-            return {'invalid': 'gmapping map not cached (--merge-only)'}
+            return {'invalid': '%s map not cached (--merge-only)' % acc.SLAMS[slam]['label']}
         if exe is None:
-            return {'invalid': 'gmapping missing: no slam_gmapping_replay (make gmapping builds it)'}
+            return {'invalid': acc.slam_missing(slam)}
         os.makedirs(d, exist_ok=True)
         info = self.truth_doc()['robots'].get(robot, {})
         timeout = 600.0 + 4.0 * float(info.get('duration_s', 1800.0))
-        return acc.run_gmapping(exe, self.bag['team'], topic, robot, self.seed, GMAPPING_CONFIG, prefix,
+        return acc.run_gmapping(exe, self.bag['team'], topic, robot, self.seed, SLAM_CONFIG, prefix,
                                 {'key': key, 'args': doc, 'robot': robot}, timeout, ARGS.port,
-                                os.path.join(ARGS.work, 'ros_home'), ARGS.gmapping_params)
+                                os.path.join(ARGS.work, 'ros_home'), ARGS.gmapping_params, slam=slam)
 
     # --- best rigid fit of a map to the ground truth (cached beside the map)
-    def best_fit(self, robot: str, grid, truth, start) -> Optional[List[float]]:
+    def best_fit(self, robot: str, grid, truth, start) -> Dict[str, Any]:
+        """``robot``'s map's best fit to the log's ground truth (accuracy.py ``best_score`` from its
+        known ``start`` and the eight headings): {'pose' (None when it cannot be scored),
+        'fitness', 'from_start_pose' (the Fitness from the start pose alone), 'coverage', 'from',
+        'invalid', 'seconds'}, kept in MAP.fit.json."""
         from multi_map_merge.core.transforms import se2, xyyaw
         g = self.gm[robot]
         path = os.path.splitext(g['map'])[0] + '.fit.json'
@@ -202,16 +229,33 @@ class Case:
             with open(path) as f:
                 fit = json.load(f)
             if fit.get('key') == key:
-                return fit.get('pose')
+                return fit
         t = time.time()
         s = acc.best_score(grid, truth, [se2(*start)])
         import numpy as np
         fit = {'key': key, 'pose': list(xyyaw(np.array(s['T']))) if 'T' in s else None,
-               'fitness': s.get('fitness'), 'from': s.get('from'), 'invalid': s.get('invalid'),
-               'seconds': round(time.time() - t, 1)}
+               'fitness': s.get('fitness'), 'from_start_pose': s.get('from_start_pose'),
+               'coverage': s.get('coverage'), 'inlier_rmse': s.get('inlier_rmse'), 'from': s.get('from'),
+               'invalid': s.get('invalid'), 'seconds': round(time.time() - t, 1)}
         with open(path, 'w') as f:
             json.dump(fit, f, indent=1)
-        return fit['pose']
+        return fit
+
+    def own_fits(self) -> Dict[str, Dict[str, Any]]:
+        """Each robot's final map with a map (its SLAM run valid) scored against the log's ground
+        truth from its known start (``best_fit``): {robot: fit}; {} without ``--fit`` or truth."""
+        from multi_map_merge.core.mapio import load_map
+        if not ARGS.fit or not os.path.exists(truth_map_path(self.log)):
+            return {}
+        truth = load_map(truth_map_path(self.log))
+        starts = {r: list(v['start']) for r, v in self.truth_doc()['robots'].items()}
+        out = {}
+        for r in self.robots:
+            g = self.gm.get(r) or {}
+            if g.get('invalid') or not g.get('map') or r not in starts:
+                continue
+            out[r] = self.best_fit(r, load_map(g['map']), truth, starts[r])
+        return out
 
     # --- 3. the merge
     def merge(self) -> None:
@@ -235,8 +279,13 @@ class Case:
         from multi_map_merge.core.transforms import xyyaw
         bad = [(r, self.gm.get(r, {}).get('invalid', 'not run')) for r in self.robots
                if not self.gm.get(r) or self.gm[r].get('invalid')]
+        t = time.time()
+        own = self.own_fits()         # every robot's own map against the truth, also in a case that fails
+        fit_s = time.time() - t
+        own_fit = {r: {k: f.get(k) for k in ('fitness', 'from_start_pose', 'coverage', 'inlier_rmse', 'from',
+                                             'invalid')} for r, f in own.items()}
         if bad:
-            return {'invalid': acc.group_reasons(bad)}
+            return {'invalid': acc.group_reasons(bad), 'own_fit': own_fit}
         td = self.truth_doc()
         starts = {r: list(td['robots'][r]['start']) for r in self.robots}
         maps = {r: load_map(self.gm[r]['map']) for r in self.robots}
@@ -249,13 +298,7 @@ class Case:
         t = time.time()
         m.estimate()
         est_s = time.time() - t
-        fits: Dict[str, Optional[List[float]]] = {}
-        t = time.time()
-        if ARGS.fit and os.path.exists(truth_map_path(self.log)):
-            truth = load_map(truth_map_path(self.log))
-            for r in self.robots:
-                fits[r] = self.best_fit(r, maps[r], truth, starts[r])
-        fit_s = time.time() - t
+        fits: Dict[str, Optional[List[float]]] = {r: f.get('pose') for r, f in own.items()}
         ref = m.reference
         recs, unplaced = [], []
         pairs = m.pair_results()
@@ -288,7 +331,7 @@ class Case:
                                    relative(fits[a], fits[b]) if fits.get(a) and fits.get(b) else None)
             rec['case'] = self.name
             link_recs.append(rec)
-        return {'reference': ref, 'placements': recs, 'links': link_recs, 'unplaced': unplaced,
+        return {'reference': ref, 'placements': recs, 'links': link_recs, 'unplaced': unplaced, 'own_fit': own_fit,
                 'estimate_s': round(est_s, 2),
                 'fit_s': round(fit_s, 1),
                 'map_cells': {r: [int(g.width), int(g.height)] for r, g in maps.items()}}
@@ -317,12 +360,20 @@ class Case:
         for r in self.robots:
             g = self.gm.get(r, {})
             gl.append('%s %s/%s' % (r, g.get('processed', '-'), g.get('scans', '-')))
-        lines.append('  gmapping processed/scans: %s; %s gmapping %.0f s wall, %.0f CPU s%s; merge %.1f s '
+        label = acc.SLAMS[ARGS.slam]['label']
+        lines.append('  %s processed/scans: %s; %s %s %.0f s wall, %.0f CPU s%s; merge %.1f s '
                      '(estimate %s s, fits %s s)'
-                     % (', '.join(gl), 'bags cached,' if t['bags_cached'] else 'bags %s s,' % (t['bags_wall_s'] or '-'),
+                     % (label, ', '.join(gl), 'bags cached,' if t['bags_cached'] else 'bags %s s,' % (t['bags_wall_s']
+                                                                                                  or '-'), label,
                         t['gmapping_wall_s_sum'], t['gmapping_cpu_s_sum'],
                         ' (cached: %s)' % ' '.join(t['gmapping_cached']) if t['gmapping_cached'] else '',
                         res.get('merge_wall_s') or 0, res.get('estimate_s', '-'), res.get('fit_s', '-')))
+        fits = res.get('own_fit') or {}
+        if fits:
+            lines.append('  own maps against the truth (Fitness; from the start pose alone): %s' % ', '.join(
+                '%s %s (%s)' % (r, '-' if f.get('fitness') is None else '%.4f' % f['fitness'],
+                                '-' if f.get('from_start_pose') is None else '%.4f' % f['from_start_pose'])
+                for r, f in sorted(fits.items())))
         if res.get('invalid'):
             lines.append('  INVALID: %s' % res['invalid'])
             say(*lines)
@@ -351,7 +402,7 @@ _write_lock = threading.Lock()
 
 
 def plan(case: Case, sched: 'acc.Scheduler') -> None:
-    """bags -> one gmapping per robot -> the merge, the earliest case first."""
+    """bags -> one SLAM run per robot -> the merge, the earliest case first."""
     i = case.index
     left = {'n': case.n}
 
@@ -363,7 +414,8 @@ def plan(case: Case, sched: 'acc.Scheduler') -> None:
                 if not acc._stopping.is_set():
                     traceback.print_exc()
                 with case.lock:
-                    case.gm[robot] = {'invalid': 'gmapping run failed: %s: %s' % (type(e).__name__, e)}
+                    case.gm[robot] = {'invalid': '%s run failed: %s: %s' % (acc.SLAMS[ARGS.slam]['label'],
+                                                                           type(e).__name__, e)}
             with case.lock:
                 left['n'] -= 1
                 last = left['n'] == 0
@@ -390,15 +442,18 @@ def plan(case: Case, sched: 'acc.Scheduler') -> None:
 def write_results(final: bool = False) -> Dict[str, Any]:
     with _write_lock:
         done = [c for c in CASES if c.result is not None]
-        s = summarize(c.as_json() for c in done)
-        lines = summary_lines(s)
-        doc = {'complete': final and len(done) == len(CASES), 'line': lines[-1], 'summary': s,
+        cases = [c.as_json() for c in done]
+        s = summarize(cases)
+        own = own_maps(cases)
+        lines = own_maps_lines(own, acc.SLAMS[ARGS.slam]['label']) + summary_lines(s)
+        doc = {'complete': final and len(done) == len(CASES), 'line': lines[-1], 'summary': s, 'own_maps': own,
                'args': {'cases': [c.name for c in CASES], 'work': ARGS.work, 'jobs': ARGS.jobs,
                         'merge_config': ARGS.merge_config, 'fit': ARGS.fit,
-                        'gmapping_config': os.path.relpath(GMAPPING_CONFIG, REPO),
+                        'slam': ARGS.slam, 'slam_binary': acc.replay_binary(ARGS.slam),
+                        'gmapping_config': os.path.relpath(SLAM_CONFIG, REPO),
                         'gmapping_params': ARGS.gmapping_params},
                'thresholds': {'chi2_3dof': 7.81, 'chi2_2dof': 5.99, 'off': [0.10, 1.0], 'off_wide': [0.20, 2.0]},
-               'runtime_s': round(time.time() - T_START, 1), 'cases': [c.as_json() for c in done]}
+               'runtime_s': round(time.time() - T_START, 1), 'cases': cases}
         os.makedirs(ARGS.results, exist_ok=True)
         with open(os.path.join(ARGS.results, ARGS.stem + '.json'), 'w') as f:
             json.dump(doc, f, indent=1, default=acc._json_default)
@@ -436,14 +491,19 @@ def parse_args(argv: Optional[List[str]] = None):
     ap.add_argument('--cases', default='', help="comma-separated fnmatch patterns of case names, e.g. 'aces-*,*-3r-s1'")
     ap.add_argument('--config', action='append', default=[], metavar='KEY=VALUE',
                     help='a MergeConfig field for the merges (repeatable; VALUE as YAML)')
-    ap.add_argument('--gmapping-param', action='append', default=[], metavar='KEY=VALUE',
-                    help='a gmapping parameter over GMAPPING_PARAMS (repeatable; makes new maps)')
-    ap.add_argument('--merge-only', action='store_true', help='never run make_robot_bags or gmapping: cached maps only')
+    ap.add_argument('--slam', choices=sorted(acc.SLAMS), default=acc.DEFAULT_SLAM,
+                    help='the SLAM making every map: rbpf (rbpf_slam_replay; the default) or gmapping '
+                         '(slam_gmapping_replay, where ROS has gmapping: elsewhere every case is INVALID)')
+    ap.add_argument('--slam-param', '--gmapping-param', dest='gmapping_param', action='append', default=[],
+                    metavar='KEY=VALUE',
+                    help='a SLAM parameter (gmapping\'s names) over SLAM_PARAMS (repeatable; makes new maps)')
+    ap.add_argument('--merge-only', action='store_true', help='never run make_robot_bags or a SLAM: cached maps only')
     ap.add_argument('--no-fit', dest='fit', action='store_false',
                     help="skip the error against the maps' best rigid fits (lab/evaluate.py, Open3D)")
     ap.add_argument('--work', default='/tmp/mmm_bend', help='cache of bags, maps, fits (default /tmp/mmm_bend)')
     ap.add_argument('--results', default=os.path.join(HERE, 'results'), help='where STEM.{json,txt} go')
-    ap.add_argument('--stem', default='bend_sweep', help='result file names (default bend_sweep)')
+    ap.add_argument('--stem', default=None,
+                    help='result file names (default bend_sweep; bend_sweep_gmapping with --slam gmapping)')
     ap.add_argument('--jobs', type=int, default=1, help='heavy steps at once (1 or 2; default 1)')
     ap.add_argument('--port', type=int, default=13500, help='first port tried for the roscores (default 13500)')
     a = ap.parse_args(argv)
@@ -455,7 +515,9 @@ def parse_args(argv: Optional[List[str]] = None):
     a.seed_list = [int(x) for x in _csv(a.seeds)]
     a.patterns = _csv(a.cases)
     a.merge_config = _kv(a.config, '--config')
-    a.gmapping_params = dict(GMAPPING_PARAMS, **_kv(a.gmapping_param, '--gmapping-param'))
+    a.gmapping_params = dict(SLAM_PARAMS, **_kv(a.gmapping_param, '--slam-param'))
+    if a.stem is None:
+        a.stem = 'bend_sweep' + ('' if a.slam == acc.DEFAULT_SLAM else '_' + a.slam)
     a.jobs = max(1, min(2, a.jobs))
     a.work = os.path.abspath(a.work)
     return a
@@ -483,12 +545,13 @@ def main(argv: Optional[List[str]] = None) -> int:
                         continue
                     CASES.append(c)
                     k += 1
-        exe = acc.replay_binary()
+        exe = acc.replay_binary(ARGS.slam)
         say('bend sweep: %d cases (%s); work dir %s; %d job(s) at once, nice %d; merge config %s'
             % (len(CASES), ', '.join(c.name for c in CASES), ARGS.work, ARGS.jobs, NICENESS,
                json.dumps(ARGS.merge_config) if ARGS.merge_config else 'defaults'),
-            'bend sweep: gmapping: %s, %s + %s%s' % (
-                exe or 'NONE', os.path.relpath(GMAPPING_CONFIG, REPO), json.dumps(ARGS.gmapping_params),
+            'bend sweep: SLAM %s: %s, %s + %s%s' % (
+                ARGS.slam, exe or 'NONE: every case is INVALID: %s' % acc.slam_missing(ARGS.slam),
+                os.path.relpath(SLAM_CONFIG, REPO), json.dumps(ARGS.gmapping_params),
                 '; --merge-only' if ARGS.merge_only else ''))
         sched = acc.Scheduler()
         for c in CASES:

@@ -275,3 +275,89 @@ def test_a_complete_old_result_is_preferred_and_a_stale_one_set_aside(tmp_path):
     assert meta['migrated_from']['meta'] == good + '.json' and not meta.get('invalid')
     aside = os.path.join(os.path.dirname(stale), 'stale-%s' % acc.key_of(stale_args), 'tb3_0.json')
     assert os.path.exists(aside)
+
+
+# ------------------------------------------------------------------------------ which SLAM
+
+RBPF_BINARY = ['/ws/devel/lib/multi_map_merge/rbpf_slam_replay', 912000, 1796290000]
+
+
+def rbpf_doc(bag, robot='tb3_0'):
+    return dict(run_doc(bag, robot), slam='rbpf', binary=RBPF_BINARY)
+
+
+def test_the_key_names_the_slam_and_its_binary():
+    team = sha('TEAM')
+    gm, rb = dict(run_doc(team), slam='gmapping'), rbpf_doc(team)
+    assert acc.key_of(gm) != acc.key_of(dict(gm, slam='rbpf'))         # the SLAM alone changes the key
+    assert acc.key_of(rb) != acc.key_of(dict(rb, binary=BINARY))       # and so does its binary
+    assert acc.slam_of(run_doc(team)) == 'gmapping'                   # written before rbpf_slam: gmapping's
+    assert acc.slam_of(rb) == 'rbpf'
+    # each SLAM's results in a directory of its own
+    assert acc.gmapping_dir('/w', 'home', 1, team) == acc.gmapping_dir('/w', 'home', 1, team, 'gmapping')
+    assert '/gmapping/' in acc.gmapping_dir('/w', 'home', 1, team, 'gmapping')
+    assert '/rbpf_slam/' in acc.gmapping_dir('/w', 'home', 1, team, 'rbpf')
+
+
+def test_gmapping_results_are_never_taken_for_rbpf_slams(tmp_path):
+    work = tmp_path
+    team = sha('TEAM')
+    # gmapping results of the same bag content: of the old scheme and in the content's directory
+    make_bag_dir(work, 'house-s1-aaaaaaaaaa')
+    old_result(work, 'house-s1-aaaaaaaaaa')
+    prefix, meta = acc.resolve_gmapping(str(work), 'house', 1, 'tb3_0', 'team.bag', team,
+                                        dict(run_doc(team), slam='gmapping'), fake_digest([]))
+    assert meta is not None and meta['migrated_now']                # gmapping's (no 'slam': gmapping's)
+    calls = []
+    before = snapshot(os.path.join(str(work), 'gmapping'))
+    prefix, meta = acc.resolve_gmapping(str(work), 'house', 1, 'tb3_0', 'team.bag', team, rbpf_doc(team),
+                                        fake_digest(calls))
+    assert meta is None and calls == []                             # to be run; no old result looked at
+    assert prefix == os.path.join(acc.gmapping_dir(str(work), 'house', 1, team, 'rbpf'), 'tb3_0')
+    assert acc.old_scheme_results(str(work), 'house', 1, 'tb3_0', 'team.bag', team, rbpf_doc(team),
+                                  fake_digest(calls)) == []
+    assert snapshot(os.path.join(str(work), 'gmapping')) == before  # gmapping's results untouched
+    # an rbpf_slam result there is found by its own key
+    with open(prefix + '.json', 'w') as fh:
+        json.dump({'key': acc.key_of(rbpf_doc(team)), 'args': rbpf_doc(team), 'processed': 266}, fh)
+    _, meta = acc.resolve_gmapping(str(work), 'house', 1, 'tb3_0', 'team.bag', team, rbpf_doc(team),
+                                   fake_digest(calls))
+    assert meta['cached'] and meta['processed'] == 266
+    # a gmapping-keyed result put in rbpf_slam's directory is stale, set aside, never used
+    gm_doc = dict(run_doc(team), slam='gmapping')
+    with open(prefix + '.json', 'w') as fh:
+        json.dump({'key': acc.key_of(gm_doc), 'args': gm_doc}, fh)
+    _, meta = acc.resolve_gmapping(str(work), 'house', 1, 'tb3_0', 'team.bag', team, rbpf_doc(team),
+                                   fake_digest(calls))
+    assert meta is None
+    assert os.path.exists(os.path.join(os.path.dirname(prefix), 'stale-%s' % acc.key_of(gm_doc), 'tb3_0.json'))
+
+
+def _exe(path):
+    os.makedirs(os.path.dirname(path))
+    with open(path, 'w') as fh:
+        fh.write('#!/bin/sh\n')
+    os.chmod(path, 0o755)
+
+
+def test_replay_binary_per_slam(tmp_path, monkeypatch):
+    ws, gm = str(tmp_path / 'ws' / 'devel'), str(tmp_path / 'gm' / 'devel')
+    _exe(os.path.join(ws, 'lib', 'multi_map_merge', 'rbpf_slam_replay'))
+    monkeypatch.setenv('CMAKE_PREFIX_PATH', ws + ':/usr')
+    assert acc.replay_binary('rbpf') == os.path.join(ws, 'lib', 'multi_map_merge', 'rbpf_slam_replay')
+    if not os.path.exists('/opt/ros/noetic/lib/gmapping/slam_gmapping_replay'):
+        assert acc.replay_binary('gmapping') is None               # no gmapping here: INVALID and why
+        assert 'gmapping missing' in acc.slam_missing('gmapping') and 'issue 47' in acc.slam_missing('gmapping')
+    _exe(os.path.join(gm, 'lib', 'gmapping', 'slam_gmapping_replay'))
+    monkeypatch.setenv('CMAKE_PREFIX_PATH', gm + ':' + ws)
+    assert acc.replay_binary('gmapping') == os.path.join(gm, 'lib', 'gmapping', 'slam_gmapping_replay')
+    assert 'make build' in acc.slam_missing('rbpf')
+
+
+def test_the_slam_option():
+    a = acc.parse_args(['--quick'])
+    assert a.slam == 'rbpf' and a.stem == 'accuracy_quick'
+    a = acc.parse_args(['--slam', 'gmapping', '--worlds', 'home,intel'])
+    assert a.slam == 'gmapping' and a.stem == 'accuracy_gmapping'
+    with pytest.raises(SystemExit):
+        acc.parse_args(['--slam', 'karto'])

@@ -20,6 +20,8 @@ from bend_summary import (  # noqa: E402
     invert,
     is_off,
     mahalanobis2,
+    own_maps,
+    own_maps_lines,
     placement_record,
     relative,
     summarize,
@@ -131,3 +133,47 @@ def test_summary_of_nothing_has_no_numbers_made_up():
     assert s['cases'] == 0 and s['placements'] == 0 and s['in95'] is None
     m = LINE.match(summary_line(s))
     assert m and m.group(3) == '-' and m.group(6) == '-' and m.group(7) == '-'
+
+
+def test_own_maps_per_log_mean_worst_cost_and_unscored():
+    cases = [
+        {'name': 'a-3r-s1', 'log': 'a', 'robots': 3,
+         'gmapping': {'tb3_0': {'cpu_s': 4.0, 'processed': 50, 'scans': 100},
+                      'tb3_1': {'cpu_s': 6.0, 'processed': 60, 'scans': 120},
+                      'tb3_2': {'invalid': 'rbpf_slam processed no scan of 100'}},
+         'own_fit': {'tb3_0': {'fitness': 0.9, 'from_start_pose': 0.8},
+                     'tb3_1': {'fitness': 0.7, 'from_start_pose': 0.7}}},
+        {'name': 'a-4r-s1', 'log': 'a', 'robots': 4, 'invalid': 'tb3_3: no map saved',   # merge failed: still scored
+         'gmapping': {'tb3_0': {'cpu_s': 2.0, 'processed': 30, 'scans': 40}},
+         'own_fit': {'tb3_0': {'fitness': 0.8, 'from_start_pose': None}}},
+        {'name': 'b-3r-s1', 'log': 'b', 'robots': 3,
+         'gmapping': {'tb3_0': {'cpu_s': 1.0, 'processed': 10, 'scans': 20},
+                      'tb3_1': {'cpu_s': 1.0, 'processed': 10, 'scans': 20}},
+         'own_fit': {'tb3_0': {'fitness': None, 'invalid': 'cannot be scored: empty'}}},
+    ]
+    o = own_maps(cases)
+    a = o['logs']['a']
+    assert a['maps'] == 3 and a['cases'] == 2
+    assert math.isclose(a['mean'], 0.8) and a['worst'] == 0.7
+    assert math.isclose(a['from_start_mean'], 0.75)                 # over the maps scored from their start
+    assert a['cpu_s_mean'] == 4.0 and a['cpu_s_max'] == 6.0 and (a['processed'], a['scans']) == (140, 260)
+    b = o['logs']['b']                                               # nothing scored there: no figure made up
+    assert b['maps'] == 0 and b['mean'] is None and b['worst'] is None
+    assert o['overall']['maps'] == 3 and o['overall']['worst'] == 0.7
+    assert sorted(u[:2] for u in o['unscored']) == [['a-3r-s1', 'tb3_2'], ['b-3r-s1', 'tb3_0'], ['b-3r-s1', 'tb3_1']]
+    lines = own_maps_lines(o, 'rbpf_slam')
+    assert 'rbpf_slam' in lines[0] and any(ln.split()[0] == 'all' for ln in lines[2:])
+    assert any('not scored' in ln and 'processed no scan' in ln for ln in lines)
+
+
+def test_bend_sweep_slam_option():
+    import pytest
+    pytest.importorskip('yaml')
+    import bend_sweep
+    if not os.path.exists(bend_sweep.log_path('seattle')):
+        pytest.skip('no CARMEN logs (../shared/data/carmen)')
+    a = bend_sweep.parse_args(['--logs', 'seattle'])
+    assert a.slam == 'rbpf' and a.stem == 'bend_sweep' and a.gmapping_params == {'maxUrange': 20.0}
+    a = bend_sweep.parse_args(['--logs', 'seattle', '--slam', 'gmapping', '--slam-param', 'particles=10'])
+    assert a.slam == 'gmapping' and a.stem == 'bend_sweep_gmapping'
+    assert a.gmapping_params == {'maxUrange': 20.0, 'particles': 10}
