@@ -5,18 +5,15 @@
 // parameters take gmapping's names where they mean the same; a gmapping YAML loads as it is
 // (what has no counterpart here is ignored). Prints `update frame N` for each scan it processes
 // (N counts every scan that reached the update rule), as gmapping does.
-#include "rbpf_mapper.h"
+#include "rbpf_ros.h"
 
 #include <message_filters/subscriber.h>
-#include <mrpt/ros1bridge/laser_scan.h>
-#include <mrpt/ros1bridge/time.h>
 #include <nav_msgs/GetMap.h>
 #include <nav_msgs/MapMetaData.h>
 #include <nav_msgs/OccupancyGrid.h>
 #include <ros/ros.h>
 #include <sensor_msgs/LaserScan.h>
 #include <tf2/LinearMath/Quaternion.h>
-#include <tf2/utils.h>
 #include <tf2_ros/buffer.h>
 #include <tf2_ros/message_filter.h>
 #include <tf2_ros/transform_broadcaster.h>
@@ -35,67 +32,19 @@ namespace
 {
 using mrpt::poses::CPose2D;
 
-/** A private parameter, checked: a value outside what `ok` accepts is logged as one error naming
- * the parameter and the default used instead. */
-template <typename T, typename Ok>
-T param(ros::NodeHandle& nh, const std::string& name, T fallback, Ok ok, const char* accepts)
-{
-	T value = fallback;
-	if (!nh.getParam(name, value)) return fallback;
-	if (ok(value)) return value;
-	ROS_ERROR_STREAM("~" << name << " = " << value << " is not " << accepts << ": using " << fallback);
-	return fallback;
-}
-
-double paramDouble(ros::NodeHandle& nh, const std::string& name, double fallback, bool positive)
-{
-	return param<double>(
-		nh, name, fallback, [&](double v) { return std::isfinite(v) && (!positive || v > 0); },
-		positive ? "a finite number above 0" : "a finite number");
-}
-
-CPose2D toPose2D(const geometry_msgs::Transform& t)
-{
-	return CPose2D(t.translation.x, t.translation.y, tf2::getYaw(t.rotation));
-}
-
 class RbpfSlamNode
 {
    public:
 	RbpfSlamNode() : pnh_("~"), tfListener_(tfBuffer_)
 	{
-		baseFrame_ = pnh_.param<std::string>("base_frame", "base_link");
-		odomFrame_ = pnh_.param<std::string>("odom_frame", "odom");
-		mapFrame_ = pnh_.param<std::string>("map_frame", "map");
-		rbpf_slam::Options o;
-		o.particles = param<int>(pnh_, "particles", 30, [](int v) { return v >= 1 && v <= 10000; }, "1..10000");
-		o.delta = paramDouble(pnh_, "delta", 0.05, true);
-		o.maxRange = paramDouble(pnh_, "maxRange", 8.0, true);
-		o.maxUrange = std::min(paramDouble(pnh_, "maxUrange", std::min(o.maxRange, 80.0), true), o.maxRange);
-		o.linearUpdate = paramDouble(pnh_, "linearUpdate", 1.0, false);
-		o.angularUpdate = paramDouble(pnh_, "angularUpdate", 0.5, false);
-		o.temporalUpdate = paramDouble(pnh_, "temporalUpdate", -1.0, false);
-		o.xmin = paramDouble(pnh_, "xmin", -10.0, false);
-		o.ymin = paramDouble(pnh_, "ymin", -10.0, false);
-		o.xmax = paramDouble(pnh_, "xmax", 10.0, false);
-		o.ymax = paramDouble(pnh_, "ymax", 10.0, false);
-		if (o.xmax <= o.xmin || o.ymax <= o.ymin)
-		{
-			ROS_ERROR("~xmin..~xmax, ~ymin..~ymax is an empty map: using -10..10 m for both");
-			o.xmin = o.ymin = -10;
-			o.xmax = o.ymax = 10;
-		}
-		o.srr = paramDouble(pnh_, "srr", 0.1, false);
-		o.srt = paramDouble(pnh_, "srt", 0.2, false);
-		o.str = paramDouble(pnh_, "str", 0.1, false);
-		o.stt = paramDouble(pnh_, "stt", 0.2, false);
-		o.sigma = paramDouble(pnh_, "sigma", 0.05, true);
-		o.matchMinGoodness = paramDouble(pnh_, "match_min_goodness", 0.7, false);
-		o.matchSearchRadius = paramDouble(pnh_, "match_search_radius", 0.3, true);
-		o.seed = pnh_.param<int>("seed", 0);
+		const rbpf_slam::NodeSettings settings = rbpf_slam::readSettings(pnh_);
+		const rbpf_slam::Options& o = settings.filter;
+		baseFrame_ = settings.baseFrame;
+		odomFrame_ = settings.odomFrame;
+		mapFrame_ = settings.mapFrame;
 		maxRange_ = o.maxRange;
-		mapUpdateInterval_ = paramDouble(pnh_, "map_update_interval", 5.0, false);
-		transformPeriod_ = paramDouble(pnh_, "transform_publish_period", 0.05, false);
+		mapUpdateInterval_ = settings.mapUpdateInterval;
+		transformPeriod_ = settings.transformPublishPeriod;
 		mapper_ = std::make_unique<rbpf_slam::RbpfMapper>(o);
 
 		mapPub_ = nh_.advertise<nav_msgs::OccupancyGrid>("map", 1, true);
@@ -132,24 +81,19 @@ class RbpfSlamNode
 		CPose2D odom;
 		try
 		{
-			odom = toPose2D(tfBuffer_.lookupTransform(odomFrame_, baseFrame_, scan->header.stamp).transform);
+			odom = rbpf_slam::pose2D(tfBuffer_.lookupTransform(odomFrame_, baseFrame_, scan->header.stamp).transform);
 		}
 		catch (const tf2::TransformException& e)
 		{
 			ROS_WARN_THROTTLE(5.0, "rbpf_slam: no odometry pose for a scan (%s): scan dropped", e.what());
 			return;
 		}
-		sensor_msgs::LaserScan clipped = *scan;
-		// a reading at or beyond maxRange is no reading (gmapping's maxRange); the map takes each
-		// beam up to maxUrange
-		clipped.range_max = static_cast<float>(std::min<double>(scan->range_max, maxRange_));
 		mrpt::obs::CObservation2DRangeScan obs;
-		if (!mrpt::ros1bridge::fromROS(clipped, *laser, obs))
+		if (!rbpf_slam::toObservation(*scan, *laser, maxRange_, obs))
 		{
 			ROS_WARN_THROTTLE(5.0, "rbpf_slam: a scan could not be converted: dropped");
 			return;
 		}
-		obs.timestamp = mrpt::ros1bridge::fromROS(scan->header.stamp);
 		const std::uint64_t frame = mapper_->received();
 		if (!mapper_->offer(scan->header.stamp.toSec(), odom, obs)) return;
 		std::printf("update frame %llu\n", static_cast<unsigned long long>(frame));
@@ -185,14 +129,10 @@ class RbpfSlamNode
 				scan.header.frame_id.c_str(), e.what());
 			return nullptr;
 		}
-		const auto& q = t.transform.rotation;
-		double roll, pitch, yaw;
-		tf2::Matrix3x3(tf2::Quaternion(q.x, q.y, q.z, q.w)).getRPY(roll, pitch, yaw);
-		mrpt::poses::CPose3D pose(
-			t.transform.translation.x, t.transform.translation.y, t.transform.translation.z, yaw, pitch, roll);
+		const mrpt::poses::CPose3D pose = rbpf_slam::pose3D(t.transform);
 		ROS_INFO(
 			"rbpf_slam: laser %s at (%.3f, %.3f) m, %.1f deg on %s", scan.header.frame_id.c_str(), pose.x(),
-			pose.y(), yaw * 180 / M_PI, baseFrame_.c_str());
+			pose.y(), pose.yaw() * 180 / M_PI, baseFrame_.c_str());
 		return &laserPoses_.emplace(scan.header.frame_id, pose).first->second;
 	}
 
@@ -200,18 +140,7 @@ class RbpfSlamNode
 	{
 		const auto* grid = mapper_->bestGrid();
 		if (!grid) return;
-		nav_msgs::OccupancyGrid msg;
-		msg.header.stamp = ros::Time::now();
-		msg.header.frame_id = mapFrame_;
-		msg.info.map_load_time = msg.header.stamp;
-		msg.info.resolution = grid->getResolution();
-		msg.info.width = grid->getSizeX();
-		msg.info.height = grid->getSizeY();
-		msg.info.origin.position.x = grid->getXMin();
-		msg.info.origin.position.y = grid->getYMin();
-		msg.info.origin.orientation.w = 1.0;
-		msg.data.resize(static_cast<size_t>(msg.info.width) * msg.info.height);
-		rbpf_slam::gridToRos(*grid, msg.data.data());
+		const nav_msgs::OccupancyGrid msg = rbpf_slam::gridMessage(*grid, mapFrame_, ros::Time::now());
 		{
 			std::lock_guard<std::mutex> lock(mapMutex_);
 			map_ = msg;

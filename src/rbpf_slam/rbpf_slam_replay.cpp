@@ -5,20 +5,16 @@
 // odometry and the laser's pose. At the end it publishes the last map on `map` (latched) and
 // `map_metadata`, runs CMD (e.g. a map saver) while it holds them, and exits; it prints
 // `update frame N` for each scan processed and a last line of scans received and processed.
-#include "rbpf_mapper.h"
+#include "rbpf_ros.h"
 
-#include <mrpt/ros1bridge/laser_scan.h>
-#include <mrpt/ros1bridge/time.h>
 #include <nav_msgs/MapMetaData.h>
 #include <nav_msgs/OccupancyGrid.h>
 #include <ros/ros.h>
 #include <rosbag/bag.h>
 #include <rosbag/view.h>
 #include <sensor_msgs/LaserScan.h>
-#include <tf2/LinearMath/Matrix3x3.h>
-#include <tf2/LinearMath/Quaternion.h>
 #include <tf2/buffer_core.h>
-#include <tf2/utils.h>
+#include <tf2/exceptions.h>
 #include <tf2_msgs/TFMessage.h>
 
 #include <cmath>
@@ -38,14 +34,6 @@ void usage()
 		"  (private ROS parameters as rbpf_slam's: base_frame, odom_frame, map_frame, particles, delta, ...)\n");
 }
 
-double paramDouble(ros::NodeHandle& nh, const std::string& name, double fallback, bool positive)
-{
-	double v = fallback;
-	if (!nh.getParam(name, v)) return fallback;
-	if (std::isfinite(v) && (!positive || v > 0)) return v;
-	ROS_ERROR_STREAM("~" << name << " = " << v << " is not a valid value: using " << fallback);
-	return fallback;
-}
 }  // namespace
 
 int main(int argc, char** argv)
@@ -80,30 +68,10 @@ int main(int argc, char** argv)
 	}
 
 	ros::NodeHandle nh, pnh("~");
-	const std::string baseFrame = pnh.param<std::string>("base_frame", "base_link");
-	const std::string odomFrame = pnh.param<std::string>("odom_frame", "odom");
-	const std::string mapFrame = pnh.param<std::string>("map_frame", "map");
-	rbpf_slam::Options o;
-	o.particles = pnh.param<int>("particles", 30);
-	if (o.particles < 1) o.particles = 30;
-	o.delta = paramDouble(pnh, "delta", 0.05, true);
-	o.maxRange = paramDouble(pnh, "maxRange", 8.0, true);
-	o.maxUrange = std::min(paramDouble(pnh, "maxUrange", std::min(o.maxRange, 80.0), true), o.maxRange);
-	o.linearUpdate = paramDouble(pnh, "linearUpdate", 1.0, false);
-	o.angularUpdate = paramDouble(pnh, "angularUpdate", 0.5, false);
-	o.temporalUpdate = paramDouble(pnh, "temporalUpdate", -1.0, false);
-	o.xmin = paramDouble(pnh, "xmin", -10.0, false);
-	o.ymin = paramDouble(pnh, "ymin", -10.0, false);
-	o.xmax = paramDouble(pnh, "xmax", 10.0, false);
-	o.ymax = paramDouble(pnh, "ymax", 10.0, false);
-	o.srr = paramDouble(pnh, "srr", 0.1, false);
-	o.srt = paramDouble(pnh, "srt", 0.2, false);
-	o.str = paramDouble(pnh, "str", 0.1, false);
-	o.stt = paramDouble(pnh, "stt", 0.2, false);
-	o.sigma = paramDouble(pnh, "sigma", 0.05, true);
-	o.matchMinGoodness = paramDouble(pnh, "match_min_goodness", 0.7, false);
-	o.matchSearchRadius = paramDouble(pnh, "match_search_radius", 0.3, true);
-	o.seed = seed != 0 ? seed : pnh.param<int>("seed", 0);
+	const rbpf_slam::NodeSettings settings = rbpf_slam::readSettings(pnh);
+	const std::string &baseFrame = settings.baseFrame, &odomFrame = settings.odomFrame, &mapFrame = settings.mapFrame;
+	rbpf_slam::Options o = settings.filter;
+	if (seed != 0) o.seed = seed;
 
 	rosbag::Bag bag;
 	try
@@ -138,20 +106,13 @@ int main(int argc, char** argv)
 		{
 			if (!laser)
 			{
-				const auto t = tf.lookupTransform(baseFrame, scan->header.frame_id, scan->header.stamp).transform;
-				double roll, pitch, yaw;
-				tf2::Matrix3x3(tf2::Quaternion(t.rotation.x, t.rotation.y, t.rotation.z, t.rotation.w))
-					.getRPY(roll, pitch, yaw);
-				laser = std::make_unique<mrpt::poses::CPose3D>(
-					t.translation.x, t.translation.y, t.translation.z, yaw, pitch, roll);
+				laser = std::make_unique<mrpt::poses::CPose3D>(rbpf_slam::pose3D(
+					tf.lookupTransform(baseFrame, scan->header.frame_id, scan->header.stamp).transform));
 			}
-			const auto t = tf.lookupTransform(odomFrame, baseFrame, scan->header.stamp).transform;
-			const mrpt::poses::CPose2D odom(t.translation.x, t.translation.y, tf2::getYaw(t.rotation));
-			sensor_msgs::LaserScan clipped = *scan;
-			clipped.range_max = static_cast<float>(std::min<double>(scan->range_max, o.maxRange));
+			const mrpt::poses::CPose2D odom =
+				rbpf_slam::pose2D(tf.lookupTransform(odomFrame, baseFrame, scan->header.stamp).transform);
 			mrpt::obs::CObservation2DRangeScan obs;
-			if (!mrpt::ros1bridge::fromROS(clipped, *laser, obs)) continue;
-			obs.timestamp = mrpt::ros1bridge::fromROS(scan->header.stamp);
+			if (!rbpf_slam::toObservation(*scan, *laser, o.maxRange, obs)) continue;
 			const std::uint64_t frame = mapper.received();
 			if (mapper.offer(scan->header.stamp.toSec(), odom, obs))
 			{
@@ -178,18 +139,7 @@ int main(int argc, char** argv)
 		std::fprintf(stderr, "rbpf_slam_replay: no scan processed: no map\n");
 		return 1;
 	}
-	nav_msgs::OccupancyGrid map;
-	map.header.stamp = ros::Time::now();
-	map.header.frame_id = mapFrame;
-	map.info.map_load_time = map.header.stamp;
-	map.info.resolution = grid->getResolution();
-	map.info.width = grid->getSizeX();
-	map.info.height = grid->getSizeY();
-	map.info.origin.position.x = grid->getXMin();
-	map.info.origin.position.y = grid->getYMin();
-	map.info.origin.orientation.w = 1.0;
-	map.data.resize(static_cast<size_t>(map.info.width) * map.info.height);
-	rbpf_slam::gridToRos(*grid, map.data.data());
+	const nav_msgs::OccupancyGrid map = rbpf_slam::gridMessage(*grid, mapFrame, ros::Time::now());
 	ros::Publisher mapPub = nh.advertise<nav_msgs::OccupancyGrid>("map", 1, true);
 	ros::Publisher metaPub = nh.advertise<nav_msgs::MapMetaData>("map_metadata", 1, true);
 	mapPub.publish(map);
