@@ -6,6 +6,7 @@ that ignored --help and went on would wait for that master (or start the demo) a
 by the timeout; one whose text was cut (a docstring's first line only) misses its last words.
 """
 import os
+import shutil
 import socket
 import subprocess
 
@@ -72,9 +73,15 @@ def test_map_merge_node_refuses_an_unknown_option():
     assert rc == 2 and 'unrecognized arguments: --rate 2' in err, (rc, out, err)
 
 
-def test_run_demo_lds02_driver_needs_live_gmapping(tmp_path):
-    """--lds02-driver on the fallback path (maps recorded earlier, of fixed scans) is an error
-    that says why, before anything starts or is written."""
-    rc, out, err = run('run_demo', '--lds02-driver', cwd=str(tmp_path), DEMO_GMAPPING='0')
-    assert rc == 1 and '--lds02-driver needs live gmapping (DEMO_GMAPPING=0)' in err and out == '', (rc, out, err)
+def test_run_demo_refuses_a_slam_it_cannot_run(tmp_path):
+    """DEMO_SLAM names each robot's SLAM: a value not among rbpf and gmapping, and gmapping where
+    ROS cannot find it, are errors that say why, before anything starts or is written."""
+    rc, out, err = run('run_demo', cwd=str(tmp_path), DEMO_SLAM='cartographer')
+    assert rc == 2 and 'DEMO_SLAM=cartographer is not one of: rbpf, gmapping' in err and out == '', (rc, out, err)
+    assert os.listdir(str(tmp_path)) == []
+    if shutil.which('rospack') and subprocess.run(['rospack', 'find', 'gmapping'], capture_output=True).returncode == 0:
+        pytest.skip('ROS has gmapping here: DEMO_SLAM=gmapping would run')
+    rc, out, err = run('run_demo', cwd=str(tmp_path), DEMO_SLAM='gmapping')
+    assert rc == 1 and 'DEMO_SLAM=gmapping needs the ROS package gmapping' in err and 'DEMO_SLAM=rbpf' in err \
+        and out == '', (rc, out, err)
     assert os.listdir(str(tmp_path)) == []
