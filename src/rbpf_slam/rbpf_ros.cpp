@@ -1,6 +1,5 @@
 #include "rbpf_ros.h"
 
-#include <mrpt/ros1bridge/laser_scan.h>
 #include <mrpt/ros1bridge/time.h>
 #include <tf2/LinearMath/Matrix3x3.h>
 #include <tf2/LinearMath/Quaternion.h>
@@ -71,10 +70,35 @@ bool toObservation(
 	const sensor_msgs::LaserScan& scan, const mrpt::poses::CPose3D& laser, double maxRange,
 	mrpt::obs::CObservation2DRangeScan& out)
 {
-	sensor_msgs::LaserScan clipped = scan;
-	clipped.range_max = static_cast<float>(std::min<double>(scan.range_max, maxRange));
-	if (!mrpt::ros1bridge::fromROS(clipped, laser, out)) return false;
+	// MRPT spreads a scan's N beams evenly over its aperture, centred on the sensor's x axis.
+	// Beam i of the ROS scan is at angle_min + i * angle_increment: so the aperture is
+	// (N - 1) increments and the sensor turned to the scan's middle angle, beams in their own
+	// order. (mrpt::ros1bridge::fromROS instead maps each MRPT beam to a ROS index by truncation,
+	// which can put a beam one increment off.)
+	const size_t n = scan.ranges.size();
+	if (n < 2 || !std::isfinite(scan.angle_increment) || scan.angle_increment == 0.0f) return false;
+	const double increment = std::abs(static_cast<double>(scan.angle_increment));
+	const double aperture = increment * static_cast<double>(n - 1);
+	const double first = scan.angle_increment > 0 ? scan.angle_min : scan.angle_min + scan.angle_increment * (n - 1.0);
+	const double middle = first + 0.5 * aperture;
+	out = mrpt::obs::CObservation2DRangeScan();
 	out.timestamp = mrpt::ros1bridge::fromROS(scan.header.stamp);
+	out.sensorLabel = scan.header.frame_id;
+	out.rightToLeft = true;
+	out.aperture = static_cast<float>(aperture);
+	const double usable = std::min<double>(scan.range_max, maxRange);
+	out.maxRange = static_cast<float>(usable);
+	out.sensorPose = laser + mrpt::poses::CPose3D(0, 0, 0, middle, 0, 0);
+	out.resizeScan(n);
+	for (size_t i = 0; i < n; ++i)
+	{
+		const float r = scan.ranges[scan.angle_increment > 0 ? i : n - 1 - i];
+		// as gmapping: no reading (inf, NaN, 0 or under range_min) and readings at or beyond
+		// maxRange are no obstacle
+		const bool valid = std::isfinite(r) && r > scan.range_min && r < usable;
+		out.setScanRange(i, valid ? r : static_cast<float>(usable));
+		out.setScanRangeValidity(i, valid);
+	}
 	return true;
 }
 

@@ -215,6 +215,19 @@ class RbpfSlamNode
 
 int main(int argc, char** argv)
 {
+	for (int i = 1; i < argc; ++i)
+		if (std::string(argv[i]) == "-h" || std::string(argv[i]) == "--help")
+		{
+			std::printf(
+				"usage: rbpf_slam [__name:=NAME] [scan:=TOPIC ...]\n"
+				"  one robot's live grid SLAM (MRPT's Rao-Blackwellized particle filter) with slam_gmapping's\n"
+				"  interface: subscribes scan and the odometry TF; publishes map, map_metadata, the TF\n"
+				"  map_frame -> odom_frame and the service dynamic_map. Private parameters (gmapping's names):\n"
+				"  base_frame odom_frame map_frame particles delta xmin ymin xmax ymax maxRange maxUrange\n"
+				"  linearUpdate angularUpdate temporalUpdate map_update_interval transform_publish_period\n"
+				"  srr srt str stt sigma match_min_goodness match_search_radius seed (docs/rbpf_slam.md)\n");
+			return 0;
+		}
 	ros::init(argc, argv, "rbpf_slam");
 	RbpfSlamNode node;
 	ros::spin();

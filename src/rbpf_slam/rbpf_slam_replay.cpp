@@ -26,10 +26,10 @@
 
 namespace
 {
-void usage()
+void usage(std::FILE* to)
 {
 	std::fprintf(
-		stderr,
+		to,
 		"usage: rbpf_slam_replay --bag_filename BAG [--scan_topic /scan] [--seed N] [--on_done CMD]\n"
 		"  (private ROS parameters as rbpf_slam's: base_frame, odom_frame, map_frame, particles, delta, ...)\n");
 }
@@ -47,7 +47,7 @@ int main(int argc, char** argv)
 		const bool hasValue = i + 1 < argc;
 		if (a == "-h" || a == "--help")
 		{
-			usage();
+			usage(stdout);
 			return 0;
 		}
 		if (a == "--bag_filename" && hasValue) bagFile = argv[++i];
@@ -57,13 +57,13 @@ int main(int argc, char** argv)
 		else
 		{
 			std::fprintf(stderr, "rbpf_slam_replay: unknown or incomplete argument '%s'\n", a.c_str());
-			usage();
+			usage(stderr);
 			return 2;
 		}
 	}
 	if (bagFile.empty())
 	{
-		usage();
+		usage(stderr);
 		return 2;
 	}
 
