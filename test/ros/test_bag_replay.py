@@ -37,7 +37,10 @@ LIMITS = {
     # in the wrong place (metres, or a turn) still fails
     'gmapping': dict(metres=0.25, degrees=6.0, fitness=0.55, rmse=0.07, end=0.5, rate=1.5),
 }
-LIMITS['rbpf'] = LIMITS['gmapping']     # gmapping's particle filter over MRPT: held to gmapping's limits
+# gmapping's particle filter over MRPT: held to gmapping's limits but for the distance (its robots
+# came 0.15-0.21 m from their starts over four live runs, its seed from the clock: 0.25 m is too
+# near to hold every run; a robot merged in the wrong place is metres off)
+LIMITS['rbpf'] = dict(LIMITS['gmapping'], metres=0.30)
 
 
 class TestBagReplay(unittest.TestCase):
