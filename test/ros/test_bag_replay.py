@@ -38,7 +38,7 @@ LIMITS = {
     'gmapping': dict(metres=0.25, degrees=6.0, fitness=0.55, rmse=0.07, end=0.5, rate=1.5),
 }
 # gmapping's particle filter over MRPT: held to gmapping's limits but for the distance (its robots
-# came 0.15-0.21 m from their starts over four live runs, its seed from the clock: 0.25 m is too
+# came 0.15-0.21 m from their starts in two live runs, its seed from the clock: 0.25 m is too
 # near to hold every run; a robot merged in the wrong place is metres off)
 LIMITS['rbpf'] = dict(LIMITS['gmapping'], metres=0.30)
 
