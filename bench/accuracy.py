@@ -685,11 +685,12 @@ def run_gmapping(exe: str, bag: str, topic: str, name: str, seed: int, config: s
                  'scans': scans, 'processed': processed, 'dropped': dropped, 'rc': r['rc'],
                  'wall_s': r['wall_s'], 'cpu_s': r['cpu_s'], 'map': prefix + '.yaml', 'log': prefix + '.log'})
     why = None
-    out_of_memory = 'std::bad_alloc' in log or r['rc'] == -9
+    # (MRPT's serialising of a particle's map fails an assertion when its buffer cannot grow)
+    oom_sign = next((m for m in ('std::bad_alloc', 'CMemoryStream::resize') if m in log), None)
+    out_of_memory = oom_sign is not None or r['rc'] == -9
     if out_of_memory:
         why = ('%s ran out of memory (exit %s: %s; its limit %s GiB, SLAM_MEMORY_GB) after %d of %d scans (%s)'
-               % (label, r['rc'], 'std::bad_alloc' if 'std::bad_alloc' in log else 'killed', SLAM_MEMORY_GB,
-                  processed, scans, prefix + '.log'))
+               % (label, r['rc'], oom_sign or 'killed', SLAM_MEMORY_GB, processed, scans, prefix + '.log'))
     elif r['timed_out']:
         why = '%s did not finish within %.0f s' % (label, timeout)
     elif processed == 0:
