@@ -87,7 +87,7 @@ RbpfMapper::RbpfMapper(const Options& o) : options_(o)
 	builder_->mapPDF.setVerbosityLevel(mrpt::system::LVL_ERROR);
 	builder_->options.enableMapUpdating = true;
 	builder_->options.debugForceInsertion = true;
-	builder_->initialize();
+	// initialised at the first processed scan, at its odometry pose (offer)
 }
 
 bool RbpfMapper::offer(double stamp, const CPose2D& odom, const mrpt::obs::CObservation2DRangeScan& scan)

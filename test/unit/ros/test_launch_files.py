@@ -32,8 +32,12 @@ SLAMS = ['gmapping', 'rbpf']
 # slam:=X starts (package, executable = node name); both read the same gmapping YAML
 SLAM_NODE = {'gmapping': ('gmapping', 'slam_gmapping'), 'rbpf': ('multi_map_merge', 'rbpf_slam')}
 # slam:=X's default settings (slam_robot.launch's config (slam)), as loaded
-SLAM_YAML = {s: yaml.safe_load(open(os.path.join(REPO, 'config', f)))
-             for s, f in (('gmapping', 'gmapping_lds02.yaml'), ('rbpf', 'rbpf_lds02.yaml'))}
+def _yaml(name):
+    with open(os.path.join(REPO, 'config', name)) as f:
+        return yaml.safe_load(f)
+
+
+SLAM_YAML = {'gmapping': _yaml('gmapping_lds02.yaml'), 'rbpf': _yaml('rbpf_lds02.yaml')}
 COMPILED = {'rbpf_slam'}      # this package's C++ executables (devel/lib), not scripts/
 TB3_BASE = os.path.join('includes', 'tb3_robot_base.launch')
 CHECK_ARG = os.path.join('includes', 'check_arg.launch')   # starts nothing: it only checks
