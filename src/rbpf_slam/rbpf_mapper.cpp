@@ -4,9 +4,15 @@
 #include <mrpt/obs/CActionCollection.h>
 #include <mrpt/obs/CActionRobotMovement2D.h>
 #include <mrpt/obs/CSensoryFrame.h>
-#include <mrpt/poses/CPosePDFGaussian.h>
-#include <mrpt/maps/CSimpleMap.h>
 #include <mrpt/random/RandomGenerators.h>
+#include <mrpt/slam/CICP.h>
+#include <mrpt/maps/CSimplePointsMap.h>
+#include <mrpt/poses/CPoseRandomSampler.h>
+#include <mrpt/math/wrap2pi.h>
+#include <mrpt/maps/CMultiMetricMapPDF.h>
+#include <mrpt/slam/CMetricMapBuilderRBPF.h>
+
+#include <Eigen/Dense>
 
 #include <chrono>
 #include <cmath>
@@ -16,15 +22,123 @@ namespace rbpf_slam
 using mrpt::maps::COccupancyGridMap2D;
 using mrpt::poses::CPose2D;
 
+/** The particles, with the proposal of Grisetti, Stachniss and Burgard (2007): each particle's
+ * scan is matched against its own grid from its odometry guess (ICP on the grid), and its new pose
+ * drawn from the match's Gaussian times the odometry's (the scan's evidence times the motion
+ * model). A match that is poor (a low share of the scan's points paired) or that lands where the
+ * odometry could not have taken the robot is not trusted: the odometry's own distribution places
+ * that particle. Its weight is the scan's likelihood in its grid at the pose drawn.
+ *
+ * Written here rather than MRPT's CMultiMetricMapPDF::prediction_and_update_pfOptimalProposal
+ * used: in MRPT 2.5.8 that one draws around the match alone, and around a poor match too (its
+ * odometry fallback is set after the pose to draw from was copied). */
+class ScanMatchParticles : public mrpt::maps::CMultiMetricMapPDF
+{
+   public:
+	ScanMatchParticles(
+		const mrpt::bayes::CParticleFilter::TParticleFilterOptions& pf,
+		const mrpt::maps::TSetOfMetricMapInitializers& maps, const TPredictionParams& prediction,
+		double gate)
+		: CMultiMetricMapPDF(pf, maps, prediction), gate_(gate)
+	{
+	}
+
+	std::uint64_t matched = 0, odometry = 0;  //!< particle moves by scan match, by odometry
+
+   protected:
+	void prediction_and_update_pfOptimalProposal(
+		const mrpt::obs::CActionCollection* actions, const mrpt::obs::CSensoryFrame* sf,
+		const mrpt::bayes::CParticleFilter::TParticleFilterOptions& pfOptions) override
+	{
+		using mrpt::poses::CPose3D;
+		const auto move = actions->getBestMovementEstimation();
+		ASSERT_(move && sf);
+		const auto [odomCov, odomMean] = move->poseChange->getCovarianceAndMean();
+		mrpt::poses::CPoseRandomSampler odomSampler;
+		odomSampler.setPosePDF(*move->poseChange);
+
+		mrpt::maps::CSimplePointsMap scanPoints;
+		scanPoints.insertionOptions.minDistBetweenLaserPoints = 0.02f;
+		scanPoints.insertionOptions.isPlanarMap = true;
+		sf->insertObservationsInto(scanPoints);
+
+		mrpt::slam::CICP icp(options.icp_params);
+		const Eigen::Matrix3d odomLocal = odomCov.asEigen();
+		// the least spread of a scan match: its own estimate is too sure of itself where the
+		// walls it matched are a few cells thick
+		constexpr double floorXY = 0.01, floorYaw = 0.5 * M_PI / 180.0;
+
+		// the first scan finds every grid empty: the particles stay at the start pose, which
+		// defines the map frame, and it only goes into their grids
+		const bool firstScan = getNumberOfObservationsInSimplemap() == 0;
+
+		mrpt::math::CVectorDouble noise;
+		for (size_t i = 0; i < m_particles.size(); ++i)
+		{
+			auto& particle = *m_particles[i].d;
+			if (firstScan)
+			{
+				particle.robotPath.push_back(particle.robotPath.back());
+				continue;
+			}
+			const CPose2D last(CPose3D(particle.robotPath.back()));
+			const CPose2D guess = last + odomMean;
+			// the odometry's spread of the guess, turned from the last pose's frame into the map's
+			Eigen::Matrix3d rot = Eigen::Matrix3d::Identity();
+			rot.topLeftCorner<2, 2>() = Eigen::Rotation2Dd(last.phi()).toRotationMatrix();
+			const Eigen::Matrix3d guessCov = rot * odomLocal * rot.transpose();
+			const auto grid = particle.mapTillNow.mapByClass<COccupancyGridMap2D>();
+			ASSERT_(grid);
+			mrpt::slam::CICP::TReturnInfo info;
+			const auto match = icp.Align(grid.get(), &scanPoints, guess, info);
+			const auto [matchCovM, matchMean] = match->getCovarianceAndMean();
+			Eigen::Matrix3d matchCov = matchCovM.asEigen();
+			matchCov(0, 0) = std::max(matchCov(0, 0), floorXY * floorXY);
+			matchCov(1, 1) = std::max(matchCov(1, 1), floorXY * floorXY);
+			matchCov(2, 2) = std::max(matchCov(2, 2), floorYaw * floorYaw);
+
+			// a match is believed where it is within the gate of the odometry's guess, in the
+			// odometry's spread and the match's together
+			const Eigen::Vector3d d(matchMean.x() - guess.x(), matchMean.y() - guess.y(),
+				mrpt::math::wrapToPi(matchMean.phi() - guess.phi()));
+			const Eigen::Matrix3d both = guessCov + matchCov;
+			const double d2 = d.dot(both.ldlt().solve(d));
+			CPose2D drawn;
+			if (info.goodness >= options.ICPGlobalAlign_MinQuality && d2 <= gate_)
+			{
+				// the proposal: the scan's evidence (the match, a Gaussian) times the motion
+				// model (the odometry's guess, a Gaussian), as Grisetti et al. 2007 draw from
+				const Eigen::Matrix3d gain = guessCov * both.inverse();
+				const Eigen::Matrix3d cov = guessCov - gain * guessCov;
+				const Eigen::Vector3d mean = Eigen::Vector3d(guess.x(), guess.y(), guess.phi()) + gain * d;
+				mrpt::math::CMatrixDouble33 c(cov);
+				mrpt::random::getRandomGenerator().drawGaussianMultivariate(noise, c);
+				drawn = CPose2D(mean[0] + noise[0], mean[1] + noise[1], mrpt::math::wrapToPi(mean[2] + noise[2]));
+				++matched;
+			}
+			else
+			{
+				CPose2D step;
+				odomSampler.drawSample(step);
+				drawn = last + step;
+				++odometry;
+			}
+			particle.robotPath.push_back(CPose3D(drawn).asTPose());
+			m_particles[i].log_w += pfOptions.powFactor *
+				PF_SLAM_computeObservationLikelihoodForParticle(pfOptions, i, *sf, CPose3D(drawn));
+		}
+	}
+
+   private:
+	double gate_;  //!< squared Mahalanobis distance (3 dof) of a match to the odometry's guess
+};
+
+RbpfMapper::~RbpfMapper() = default;
+
 RbpfMapper::RbpfMapper(const Options& o) : options_(o)
 {
-	mrpt::slam::CMetricMapBuilderRBPF::TConstructionOptions c;
 	// the filter runs on every scan offered to it: the update rule is ours (gmapping's)
-	c.insertionLinDistance = 0;
-	c.insertionAngDistance = 0;
-	c.localizeLinDistance = 0;
-	c.localizeAngDistance = 0;
-	c.verbosity_level = mrpt::system::LVL_ERROR;
+	mrpt::slam::CMetricMapBuilderRBPF::TConstructionOptions c;
 
 	c.PF_options.PF_algorithm = mrpt::bayes::CParticleFilter::pfOptimalProposal;
 	c.PF_options.resamplingMethod = mrpt::bayes::CParticleFilter::prSystematic;
@@ -66,10 +180,13 @@ RbpfMapper::RbpfMapper(const Options& o) : options_(o)
 	grid.likelihoodOpts.LF_zHit = 0.999f;
 	grid.likelihoodOpts.LF_zRandom = 0.001f;
 	grid.likelihoodOpts.LF_maxRange = static_cast<float>(o.maxUrange);
-	grid.likelihoodOpts.enableLikelihoodCache = true;
+	// the cache is a double per cell of the whole grid, per particle, made again after every
+	// insertion: each particle weighs a scan once between insertions, so it never pays back
+	grid.likelihoodOpts.enableLikelihoodCache = false;
 	c.mapsInitializers.push_back(grid);
 
-	// the odometry's error model: only the mean seeds each particle's scan match
+	// the odometry's error model: its mean seeds each particle's scan match, its spread is the
+	// motion model the match is weighed against
 	motion_.modelSelection = mrpt::obs::CActionRobotMovement2D::mmGaussian;
 	motion_.gaussianModel.a1 = o.srr;
 	motion_.gaussianModel.a2 = o.srt;
@@ -81,13 +198,30 @@ RbpfMapper::RbpfMapper(const Options& o) : options_(o)
 		: static_cast<std::uint32_t>(std::chrono::steady_clock::now().time_since_epoch().count());
 	mrpt::random::getRandomGenerator().randomize(seed);
 
-	builder_ = std::make_unique<mrpt::slam::CMetricMapBuilderRBPF>(c);
-	builder_->setVerbosityLevel(mrpt::system::LVL_ERROR);
-	// its particles' scan matches warn on every poor match (odometry used instead): not news
-	builder_->mapPDF.setVerbosityLevel(mrpt::system::LVL_ERROR);
-	builder_->options.enableMapUpdating = true;
-	builder_->options.debugForceInsertion = true;
+	pfOptions_ = c.PF_options;
+	// a scan match further from the odometry's guess than 99 % of the two spreads together allow
+	// (chi-square, 3 degrees of freedom) is not where the robot went
+	particles_ = std::make_unique<ScanMatchParticles>(c.PF_options, c.mapsInitializers, c.predictionOptions, 11.34);
+	particles_->setVerbosityLevel(mrpt::system::LVL_ERROR);
 	// initialised at the first processed scan, at its odometry pose (offer)
+}
+
+/** The scan as MRPT's grid insertion reads it. MRPT spreads a scan's N beams over its aperture
+ * in N - 1 steps when it matches or weighs a scan (points, likelihood), and in N steps when it
+ * inserts one into a grid: the same observation would be drawn into the map squeezed by one
+ * beam in N, a degree at the last beam of a 360-beam scan, and the map would bend. Here the
+ * aperture is N steps and the sensor turned by half a step, so every beam lands at its own
+ * angle in the grid too. */
+static mrpt::obs::CSensoryFrame gridFrame(const mrpt::obs::CObservation2DRangeScan& scan)
+{
+	auto insert = std::make_shared<mrpt::obs::CObservation2DRangeScan>(scan);
+	const double n = static_cast<double>(scan.getScanSize());
+	const double step = scan.aperture / (n - 1.0);
+	insert->aperture = static_cast<float>(step * n);
+	insert->sensorPose = scan.sensorPose + mrpt::poses::CPose3D(0, 0, 0, (scan.rightToLeft ? 0.5 : -0.5) * step, 0, 0);
+	mrpt::obs::CSensoryFrame frame;
+	frame.insert(insert);
+	return frame;
 }
 
 bool RbpfMapper::offer(double stamp, const CPose2D& odom, const mrpt::obs::CObservation2DRangeScan& scan)
@@ -109,8 +243,7 @@ bool RbpfMapper::offer(double stamp, const CPose2D& odom, const mrpt::obs::CObse
 	{
 		// the map frame is the odometry frame at the first scan, as gmapping's: the robot starts
 		// at its odometry pose (a node started after the robot moved still maps in its odom frame)
-		const mrpt::poses::CPosePDFGaussian start(odom);
-		builder_->initialize(mrpt::maps::CSimpleMap(), &start);
+		particles_->clear(odom);
 	}
 
 	mrpt::obs::CActionCollection actions;
@@ -119,9 +252,22 @@ bool RbpfMapper::offer(double stamp, const CPose2D& odom, const mrpt::obs::CObse
 	move.computeFromOdometry(processed_ == 0 ? CPose2D() : odom - lastOdom_, motion_);
 	move.timestamp = scan.timestamp;
 	actions.insert(move);
+	// the scan is matched and weighed by its beams within maxUrange, as gmapping's matcher uses
+	// them: further readings are not in the particles' grids, which only take maxUrange of a beam
+	auto matched = std::make_shared<mrpt::obs::CObservation2DRangeScan>(scan);
+	for (size_t i = 0; i < matched->getScanSize(); ++i)
+		if (matched->getScanRange(i) > options_.maxUrange) matched->setScanRangeValidity(i, false);
 	mrpt::obs::CSensoryFrame frame;
-	frame.insert(std::make_shared<mrpt::obs::CObservation2DRangeScan>(scan));
-	builder_->processActionObservation(actions, frame);
+	frame.insert(matched);
+	// one step of the filter (the proposal and weights above, then resampling when the effective
+	// sample size is low), and the scan inserted into every particle's grid at its new pose
+	mrpt::bayes::CParticleFilter filter;
+	filter.m_options = pfOptions_;
+	filter.setVerbosityLevel(mrpt::system::LVL_ERROR);
+	filter.executeOn(*particles_, &actions, &frame);
+	auto inserted = gridFrame(scan);
+	particles_->insertObservation(inserted);
+	for (auto& particle : particles_->m_particles) particle.d->mapTillNow.auxParticleFilterCleanUp();
 
 	++processed_;
 	linearSum_ = angularSum_ = 0;
@@ -130,9 +276,12 @@ bool RbpfMapper::offer(double stamp, const CPose2D& odom, const mrpt::obs::CObse
 	return true;
 }
 
+std::uint64_t RbpfMapper::matchedMoves() const { return particles_->matched; }
+std::uint64_t RbpfMapper::odometryMoves() const { return particles_->odometry; }
+
 CPose2D RbpfMapper::bestPose() const
 {
-	const auto& pdf = builder_->mapPDF;
+	const auto& pdf = *particles_;
 	size_t best = 0;
 	for (size_t i = 1; i < pdf.particlesCount(); ++i)
 		if (pdf.getW(i) > pdf.getW(best)) best = i;
@@ -144,7 +293,7 @@ CPose2D RbpfMapper::bestPose() const
 const COccupancyGridMap2D* RbpfMapper::bestGrid() const
 {
 	if (processed_ == 0) return nullptr;
-	const auto* maps = builder_->getCurrentlyBuiltMetricMap();
+	const auto* maps = particles_->getCurrentMostLikelyMetricMap();
 	if (!maps) return nullptr;
 	const auto grid = maps->mapByClass<COccupancyGridMap2D>();
 	return grid ? grid.get() : nullptr;

@@ -1,21 +1,25 @@
-// One robot's grid SLAM: MRPT's Rao-Blackwellized particle filter (CMetricMapBuilderRBPF) with
-// the optimal proposal (pfOptimalProposal: each particle's pose drawn around a scan match against
-// its own grid, Grisetti, Stachniss and Burgard 2007, the algorithm gmapping implements), fed the
-// way slam_gmapping feeds its filter: gmapping's update rule picks the scans, the odometry since
-// the last processed scan is the action. No ROS here: rbpf_slam (live) and rbpf_slam_replay (a
-// bag, every scan) wrap it.
+// One robot's grid SLAM: MRPT's Rao-Blackwellized particle filter (CParticleFilter over
+// CMultiMetricMapPDF, a grid per particle) with the optimal proposal (pfOptimalProposal: each
+// particle's pose drawn around a scan match against its own grid, weighed with the odometry,
+// Grisetti, Stachniss and Burgard 2007, the algorithm gmapping implements), fed the way
+// slam_gmapping feeds its filter: gmapping's update rule picks the scans, the odometry since the
+// last processed scan is the action. No ROS here: rbpf_slam (live) and rbpf_slam_replay (a bag,
+// every scan) wrap it.
 #pragma once
 
 #include <mrpt/maps/COccupancyGridMap2D.h>
 #include <mrpt/obs/CObservation2DRangeScan.h>
 #include <mrpt/poses/CPose2D.h>
-#include <mrpt/slam/CMetricMapBuilderRBPF.h>
+#include <mrpt/bayes/CParticleFilter.h>
+#include <mrpt/obs/CActionRobotMovement2D.h>
 
 #include <cstdint>
 #include <memory>
 
 namespace rbpf_slam
 {
+class ScanMatchParticles;
+
 /** The filter's settings, named and meant as slam_gmapping's parameters of the same name. */
 struct Options
 {
@@ -43,6 +47,7 @@ class RbpfMapper
 {
    public:
 	explicit RbpfMapper(const Options& options);
+	~RbpfMapper();
 
 	/** Offers one scan (stamp in s; odom: the base's odometry pose when the scan was taken;
 	 * scan: in the base frame, its sensorPose set). Returns true when gmapping's update rule
@@ -52,6 +57,10 @@ class RbpfMapper
 	/** Scans offered (every one reaches the update rule), and those processed. */
 	std::uint64_t received() const { return received_; }
 	std::uint64_t processed() const { return processed_; }
+	/** Particle moves so far placed by their scan match, and by the odometry (a poor match, or
+	 * one the odometry could not have reached). */
+	std::uint64_t matchedMoves() const;
+	std::uint64_t odometryMoves() const;
 
 	/** The base's pose in the map frame by the most likely particle, at the last processed scan. */
 	mrpt::poses::CPose2D bestPose() const;
@@ -62,7 +71,8 @@ class RbpfMapper
 
    private:
 	Options options_;
-	std::unique_ptr<mrpt::slam::CMetricMapBuilderRBPF> builder_;
+	std::unique_ptr<ScanMatchParticles> particles_;
+	mrpt::bayes::CParticleFilter::TParticleFilterOptions pfOptions_;
 	mrpt::obs::CActionRobotMovement2D::TMotionModelOptions motion_;
 	std::uint64_t received_ = 0, processed_ = 0;
 	// the update rule's state: odometry of the previous scan, distance and turn summed since

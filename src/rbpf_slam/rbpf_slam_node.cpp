@@ -67,9 +67,12 @@ class RbpfSlamNode
 		stopping_ = true;
 		if (tfThread_.joinable()) tfThread_.join();
 		std::printf(
-			"rbpf_slam: %llu scans received, %llu processed\n",
+			"rbpf_slam: %llu scans received, %llu processed; particle moves: %llu by scan match, %llu by "
+			"odometry\n",
 			static_cast<unsigned long long>(mapper_->received()),
-			static_cast<unsigned long long>(mapper_->processed()));
+			static_cast<unsigned long long>(mapper_->processed()),
+			static_cast<unsigned long long>(mapper_->matchedMoves()),
+			static_cast<unsigned long long>(mapper_->odometryMoves()));
 		std::fflush(stdout);
 	}
 

@@ -128,9 +128,11 @@ int main(int argc, char** argv)
 	}
 	bag.close();
 	std::printf(
-		"rbpf_slam_replay: %llu scans received, %llu processed, %llu without TF\n",
+		"rbpf_slam_replay: %llu scans received, %llu processed, %llu without TF; particle moves: %llu by "
+		"scan match, %llu by odometry\n",
 		static_cast<unsigned long long>(mapper.received()), static_cast<unsigned long long>(mapper.processed()),
-		static_cast<unsigned long long>(noOdom));
+		static_cast<unsigned long long>(noOdom), static_cast<unsigned long long>(mapper.matchedMoves()),
+		static_cast<unsigned long long>(mapper.odometryMoves()));
 	std::fflush(stdout);
 
 	const auto* grid = mapper.bestGrid();
