@@ -1,6 +1,5 @@
 #include "rbpf_mapper.h"
 
-#include <mrpt/maps/CLogOddsGridMapLUT.h>
 #include <mrpt/obs/CActionCollection.h>
 #include <mrpt/obs/CActionRobotMovement2D.h>
 #include <mrpt/obs/CSensoryFrame.h>
@@ -10,7 +9,6 @@
 #include <mrpt/poses/CPoseRandomSampler.h>
 #include <mrpt/math/wrap2pi.h>
 #include <mrpt/maps/CMultiMetricMapPDF.h>
-#include <mrpt/slam/CMetricMapBuilderRBPF.h>
 
 #include <Eigen/Dense>
 
@@ -138,19 +136,19 @@ RbpfMapper::~RbpfMapper() = default;
 RbpfMapper::RbpfMapper(const Options& o) : options_(o)
 {
 	// the filter runs on every scan offered to it: the update rule is ours (gmapping's)
-	mrpt::slam::CMetricMapBuilderRBPF::TConstructionOptions c;
-
-	c.PF_options.PF_algorithm = mrpt::bayes::CParticleFilter::pfOptimalProposal;
-	c.PF_options.resamplingMethod = mrpt::bayes::CParticleFilter::prSystematic;
-	c.PF_options.adaptiveSampleSize = false;
-	c.PF_options.sampleSize = static_cast<unsigned int>(o.particles);
-	c.PF_options.BETA = 0.5;  // resample when the effective sample size falls under half (gmapping's resampleThreshold)
-	c.PF_options.powFactor = 1.0;
+	auto& pf = filter_.m_options;
+	pf.PF_algorithm = mrpt::bayes::CParticleFilter::pfOptimalProposal;
+	pf.resamplingMethod = mrpt::bayes::CParticleFilter::prSystematic;
+	pf.adaptiveSampleSize = false;
+	pf.sampleSize = static_cast<unsigned int>(o.particles);
+	pf.BETA = 0.5;  // resample when the effective sample size falls under half (gmapping's resampleThreshold)
+	pf.powFactor = 1.0;
+	filter_.setVerbosityLevel(mrpt::system::LVL_ERROR);
 
 	// the proposal: each particle's scan matched against its own grid (ICP on the grid)
-	c.predictionOptions.pfOptimalProposal_mapSelection = 0;
-	c.predictionOptions.ICPGlobalAlign_MinQuality = static_cast<float>(o.matchMinGoodness);
-	auto& icp = c.predictionOptions.icp_params;
+	mrpt::maps::CMultiMetricMapPDF::TPredictionParams prediction;
+	prediction.ICPGlobalAlign_MinQuality = static_cast<float>(o.matchMinGoodness);
+	auto& icp = prediction.icp_params;
 	icp.ICP_algorithm = mrpt::slam::icpClassic;
 	icp.maxIterations = 40;
 	// each scan point looks for grid walls this far from it at first: the cost of a match grows
@@ -183,7 +181,8 @@ RbpfMapper::RbpfMapper(const Options& o) : options_(o)
 	// the cache is a double per cell of the whole grid, per particle, made again after every
 	// insertion: each particle weighs a scan once between insertions, so it never pays back
 	grid.likelihoodOpts.enableLikelihoodCache = false;
-	c.mapsInitializers.push_back(grid);
+	mrpt::maps::TSetOfMetricMapInitializers maps;
+	maps.push_back(grid);
 
 	// the odometry's error model: its mean seeds each particle's scan match, its spread is the
 	// motion model the match is weighed against
@@ -198,10 +197,9 @@ RbpfMapper::RbpfMapper(const Options& o) : options_(o)
 		: static_cast<std::uint32_t>(std::chrono::steady_clock::now().time_since_epoch().count());
 	mrpt::random::getRandomGenerator().randomize(seed);
 
-	pfOptions_ = c.PF_options;
 	// a scan match further from the odometry's guess than 99 % of the two spreads together allow
 	// (chi-square, 3 degrees of freedom) is not where the robot went
-	particles_ = std::make_unique<ScanMatchParticles>(c.PF_options, c.mapsInitializers, c.predictionOptions, 11.34);
+	particles_ = std::make_unique<ScanMatchParticles>(pf, maps, prediction, 11.34);
 	particles_->setVerbosityLevel(mrpt::system::LVL_ERROR);
 	// initialised at the first processed scan, at its odometry pose (offer)
 }
@@ -261,10 +259,7 @@ bool RbpfMapper::offer(double stamp, const CPose2D& odom, const mrpt::obs::CObse
 	frame.insert(matched);
 	// one step of the filter (the proposal and weights above, then resampling when the effective
 	// sample size is low), and the scan inserted into every particle's grid at its new pose
-	mrpt::bayes::CParticleFilter filter;
-	filter.m_options = pfOptions_;
-	filter.setVerbosityLevel(mrpt::system::LVL_ERROR);
-	filter.executeOn(*particles_, &actions, &frame);
+	filter_.executeOn(*particles_, &actions, &frame);
 	auto inserted = gridFrame(scan);
 	particles_->insertObservation(inserted);
 	for (auto& particle : particles_->m_particles) particle.d->mapTillNow.auxParticleFilterCleanUp();

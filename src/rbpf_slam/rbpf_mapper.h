@@ -71,8 +71,8 @@ class RbpfMapper
 
    private:
 	Options options_;
+	mrpt::bayes::CParticleFilter filter_;  //!< one step per processed scan: proposal, weights, resampling
 	std::unique_ptr<ScanMatchParticles> particles_;
-	mrpt::bayes::CParticleFilter::TParticleFilterOptions pfOptions_;
 	mrpt::obs::CActionRobotMovement2D::TMotionModelOptions motion_;
 	std::uint64_t received_ = 0, processed_ = 0;
 	// the update rule's state: odometry of the previous scan, distance and turn summed since
