@@ -87,17 +87,6 @@ class PairWorkers:
         """The maps whose features are not those of their current version."""
         return [m for m in maps.values() if self._features.get(m.name, (None,))[0] != m.key]
 
-    def _features_all(self, maps: Dict[str, RobotMap], pool) -> None:
-        """Features of every map that changed, in ``pool``'s worker processes (None: here)."""
-        todo = self._stale(maps)
-        if not todo:
-            return
-        c = self.config
-        levels = [self.crop(m)[0] for m in todo]
-        for m, f in zip(todo, _map(pool, describe_version, [c] * len(todo), levels, [self.uid] * len(todo),
-                                   [m.name for m in todo], [m.version for m in todo])):
-            self._features[m.name] = (m.key, f)
-
     def pool_for(self, maps: Dict[str, RobotMap]):
         """The worker pool that estimates these maps, or None to estimate them in this process:
         ``workers: 1``, or ``workers: 0`` and maps smaller than :data:`POOL_FROM_CELLS`."""
@@ -243,13 +232,6 @@ class PoolRunner:
         except BrokenProcessPool:
             _discard_pool()
             raise
-
-
-def _map(pool, fn, *iterables) -> list:
-    """fn over the arguments in ``pool``'s workers (in this process when it is None)."""
-    if pool is None:
-        return list(map(fn, *iterables))
-    return list(pool.map(run_task, itertools.repeat(fn), *iterables))
 
 
 def _discard_pool() -> None:
