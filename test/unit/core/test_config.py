@@ -3,6 +3,7 @@ MergeConfig's fields, config/map_merge.yaml, the README's parameter table and th
 reads are derived from it or checked against it here. A parameter declared anywhere else fails."""
 import ast
 import os
+import pickle
 import re
 from dataclasses import fields
 
@@ -38,6 +39,19 @@ def test_mergeconfig_fields_are_the_tables_parameters_with_their_defaults():
         assert p.convert(p.default) == p.default, p.name   # each default passes its own rule
     assert MergeConfig.RENAMED == {'min_reliability': 'min_inlier_ratio', 'transforms_file': 'state_file'}
     assert MergeConfig().initial_poses is not MergeConfig().initial_poses   # mutable defaults not shared
+
+
+def test_mergeconfig_is_written_out_field_by_field_with_each_parameters_type():
+    """MergeConfig is a plain dataclass (its fields readable in config.py); each field's declared
+    type is its parameter's kind, and it pickles by its own name (the worker processes)."""
+    kinds = {'bool': 'bool', 'int': 'int', 'double': 'float', 'string': 'str', 'string list': 'List[str]',
+             'double list': 'List[float]', 'dict': 'Dict[str, List[float]]'}
+    declared = {f.name: f.type for f in fields(MergeConfig)}
+    for p in P.config_parameters():
+        assert declared[p.name] == kinds[p.kind], p.name
+    assert MergeConfig.__module__ == 'multi_map_merge.core.config'
+    c = MergeConfig(workers=3, initial_poses={'a': [1.0, 2.0, 0.5]})
+    assert pickle.loads(pickle.dumps(c)) == c
 
 
 def test_every_parameter_has_a_unit_or_none_a_meaning_and_a_type():
