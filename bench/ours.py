@@ -117,8 +117,7 @@ def compose_burst(m):
     when one robot's gmapping map arrived ('live_ms', compose + publish)."""
     comp, pub = [], []
     for _ in range(COMPOSE_REPS):
-        m._patches.clear()
-        m._merged = None
+        m._compositor.reset()
         t = time.perf_counter()
         merged = m.compose()
         comp.append(time.perf_counter() - t)
@@ -126,7 +125,7 @@ def compose_burst(m):
     others = sorted(n for n in m.placements() if n != m._reference)
     live = []
     for k in range(COMPOSE_REPS if others else 0):
-        m._patches.pop(others[k % len(others)], None)
+        m._compositor.forget(others[k % len(others)])
         t = time.perf_counter()
         merged = m.compose()
         dt = time.perf_counter() - t

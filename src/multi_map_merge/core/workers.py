@@ -46,6 +46,9 @@ _POOL_SIZE = 0
 # ``workers`` >= 2, always.
 POOL_FROM_CELLS = 400_000
 
+# what this module derives once per map version (RobotMap.memo)
+CROP, FEATURES = 'crop', 'features'
+
 
 class PairWorkers:
     """One merger's side of the pool: the crop (known part) and the features of each of its
@@ -56,36 +59,21 @@ class PairWorkers:
         # names its maps in worker caches; unique across machines too (a Dask cluster's workers
         # serve the mergers of several machines, whose process ids may be the same)
         self.uid = '%d-%d-%s' % (os.getpid(), next(_MERGERS), os.urandom(4).hex())
-        self._features: Dict[str, Tuple[tuple, Features]] = {}   # in the crops' cells
-        self._crops: Dict[str, Tuple[tuple, np.ndarray, Tuple[int, int]]] = {}
-
-    def forget(self, name: str) -> None:
-        """Drop what was derived from a robot's maps."""
-        self._features.pop(name, None)
-        self._crops.pop(name, None)
 
     def crop(self, m: RobotMap) -> Tuple[np.ndarray, Tuple[int, int]]:
         """The known part of a map's levels and its (col, row) offset, once per map version:
         what features are computed on and what goes to the worker processes."""
-        cached = self._crops.get(m.name)
-        if cached is None or cached[0] != m.key:
-            c = self.config
-            lv = m.grid.levels(c.free_thresh, c.occupied_thresh)
-            cached = self._crops[m.name] = (m.key,) + crop_known(
-                lv, m.grid.known_box(c.free_thresh, c.occupied_thresh))
-        return cached[1], cached[2]
+        c = self.config
+        return m.memo(CROP, lambda: crop_known(m.grid.levels(c.free_thresh, c.occupied_thresh),
+                                               m.grid.known_box(c.free_thresh, c.occupied_thresh)))
 
     def features_of(self, m: RobotMap) -> Features:
         """(1) features of a map (in its crop's cells), computed once per map version."""
-        cached = self._features.get(m.name)
-        if cached is None or cached[0] != m.key:
-            self._features[m.name] = (m.key, describe_version(self.config, self.crop(m)[0], self.uid,
-                                                              m.name, m.version))
-        return self._features[m.name][1]
+        return m.memo(FEATURES, lambda: describe_version(self.config, self.crop(m)[0], self.uid, m.name, m.version))
 
     def _stale(self, maps: Dict[str, RobotMap]) -> List[RobotMap]:
         """The maps whose features are not those of their current version."""
-        return [m for m in maps.values() if self._features.get(m.name, (None,))[0] != m.key]
+        return [m for m in maps.values() if not m.memo_ready(FEATURES)]
 
     def pool_for(self, maps: Dict[str, RobotMap]):
         """The worker pool that estimates these maps, or None to estimate them in this process:
@@ -208,7 +196,7 @@ class PairWorkers:
             for fut in done:
                 kind, what = running.pop(fut)
                 if kind == 'features':
-                    self._features[what.name] = (what.key, fut.result())
+                    what.remember(FEATURES, fut.result())
                     ready.add(what.name)
                 else:
                     results[what] = fut.result()

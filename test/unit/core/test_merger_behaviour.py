@@ -7,7 +7,7 @@ from conftest import MAZE, merged, pose_error, shared_file, truth
 from multi_map_merge.core.config import MergeConfig
 from multi_map_merge.core.grid import Grid, known_bbox
 from multi_map_merge.core.mapio import load_map
-from multi_map_merge.core.merger import MapMerger
+from multi_map_merge.core.merger import PLANNED, MapMerger
 from multi_map_merge.core.schedule import SLOW_EVERY
 from multi_map_merge.core.state import load_state, save_state
 from multi_map_merge.lab.pieces import cut_piece
@@ -183,7 +183,7 @@ def test_early_look_alike_is_replaced_despite_its_higher_inlier_ratio(ps, pose_g
     wrong = truth(ps[0][1], ps[1][1]) @ se2(1.2, 0.0, 0.0)   # 1.2 m along, as on a corridor
     # The look-alike is planted as the kept link: no public way leads there on these maps (a
     # saved link is verified again before use, and this one agrees 0.24 on the grids).
-    m._links[('a', 'b')] = Link('a', 'b', wrong, 1.0, 0.99, 40, 40, 0.0, 1000)
+    m._ledger.links[('a', 'b')] = Link('a', 'b', wrong, 1.0, 0.99, 40, 40, 0.0, 1000)
     m.estimate()                        # ... then the look-alike is kept (maps unchanged) ...
     assert pose_error(m.placements()['b'].T, wrong)[0] < 0.35
     for k in range(2):                  # new map versions (the same levels): the rule alone acts
@@ -282,7 +282,7 @@ def test_a_map_restarted_during_an_estimation_cycle_is_not_placed_by_it(intel):
     event = m.update_map('b', Grid(g.data[:60, :60].copy(), g.resolution, (0.0, 0.0, 0.0)))
     assert event and 'restarted' in event
     for (a, b), r in zip(todo, estimates):
-        m._keep(maps[a], maps[b], r)
+        m._keep(maps[a], maps[b], r, PLANNED)
     events = m._place(maps, ref)
     assert 'b' not in m.placements() and not m.links(), (m.placements(), events)
     assert not any(e.startswith('b ') for e in events)
