@@ -122,7 +122,7 @@ def compose_burst(m):
         merged = m.compose()
         comp.append(time.perf_counter() - t)
         pub.append(publish(merged)[0])
-    others = sorted(n for n in m.placements() if n != m._reference)
+    others = sorted(n for n in m.placements() if n != m.reference)
     live = []
     for k in range(COMPOSE_REPS if others else 0):
         m._compositor.forget(others[k % len(others)])

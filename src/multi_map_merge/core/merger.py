@@ -5,7 +5,7 @@
     --(5) warp + composite--> merged grid, --(6) poses--> TF of every robot's map frame
 
 Frames: the merged frame is the reference robot's map frame (the paper's Map 1; which robot
-that is: :func:`decide_reference`). A robot's
+that is: :func:`team.decide_reference`). A robot's
 *placement* is the pose ``T_merged_k`` of its map frame in the merged frame (metres, radians).
 It is expressed between frames, not grids, so it stays valid while gmapping grows the grid.
 
@@ -19,7 +19,6 @@ import dataclasses
 import math
 import threading
 import time
-from dataclasses import dataclass
 from typing import Dict, List, NamedTuple, Optional, Sequence, Set, Tuple
 
 import numpy as np
@@ -28,7 +27,7 @@ from . import corroborate, deform, joint, links, placement, schedule, spawn, ver
 from .composite import lattice_for
 from .compositor import Compositor
 from .config import MergeConfig
-from .grid import DEFAULT_FREE_THRESH, DEFAULT_OCC_THRESH, Grid, same_grid
+from .grid import DEFAULT_FREE_THRESH, DEFAULT_OCC_THRESH, Grid
 from .ledger import PairLedger
 from .links import Link
 from .pair import PairResult, align_pair
@@ -37,6 +36,7 @@ from .priors import PriorRefused, in_priors_frame
 from .robot_map import RobotMap
 from .state import link_dict, link_from_dict, placement_dict
 from .status import RobotStatus, robot_statuses
+from .team import ReferenceChoice, Team
 from .transforms import cell_to_metric, image_to_pose, pose_to_image, within
 from .workers import PairWorkers, workers_count
 
@@ -50,60 +50,9 @@ REFRESH_BATCH = 4
 # the spare time between cycles (a grown map moves its walls against the others' rarely)
 REFINE_GROWTH = 1.1
 
-#: why the reference robot is the one it is (:meth:`MapMerger.reference_choice`)
-REF_PARAMETER = 'parameter'          # config.reference_robot
-REF_PROPOSED = 'proposed'            # propose_reference (the first of config.robots by name)
-REF_FIRST_BY_NAME = 'first by name'  # decide_reference
-
 #: what a pair's result kept by MapMerger._keep comes of: a cycle's plan, the spare time's
 #: refresh, or links of little evidence that corroborate each other
 PLANNED, REFRESHED, CORROBORATED = 'planned', 'refreshed', 'corroborated'
-
-
-def decide_reference(current: str, fixed: bool, with_maps: Sequence[str],
-                     placed: Sequence[str]) -> Tuple[str, bool]:
-    """(the reference robot, whether it is fixed from now on) when none was given: the first
-    by name among the robots ``with_maps`` while the merge is the reference's map alone (none
-    of the robots ``placed`` relative to ``current`` is another robot); fixed once another is,
-    so that no transform published with a merge ever jumps. The same robots give the same
-    reference whichever map came first (a later map of a lower name takes the reference over
-    only while nothing else is merged). A ``fixed`` reference stays."""
-    if fixed:
-        return current, True
-    if current and any(n != current for n in placed):
-        return current, True
-    return (min(with_maps) if with_maps else ''), False
-
-
-@dataclass
-class ReferenceChoice:
-    """Which robot is the reference, whether it can still change, and why it is that one."""
-
-    robot: str
-    fixed: bool
-    why: str                           # REF_PARAMETER, REF_PROPOSED or REF_FIRST_BY_NAME
-    with_maps: Tuple[str, ...] = ()    # the robots with a map, by name
-
-    def message(self) -> str:
-        """Which robot is the reference (the merged frame is its map frame), why, and how to
-        choose it (the node's ``~reference_robot``), for people; '' before there is one."""
-        ref = self.robot
-        if not ref:
-            return ''
-        if self.why == REF_PARAMETER:
-            return 'reference robot %s (set by ~reference_robot): the merged frame is its map frame' % ref
-        if self.why == REF_PROPOSED:
-            return ('reference robot %s (the first of ~robots by name; set ~reference_robot to choose '
-                    'another): the merged frame is its map frame' % ref)
-        others = ', '.join(self.with_maps)
-        if not self.fixed:
-            return ('reference robot %s for now (the first by name among the robots with a map: %s): the '
-                    'merged frame is its map frame; a robot of a lower name whose map comes before another '
-                    'robot is merged with %s takes it over; set ~reference_robot to fix it' % (ref, others, ref))
-        return ('reference robot %s, fixed now that another robot is merged with it (it was the first by name '
-                'among the robots with a map: %s; a robot whose map comes later does not take the merged '
-                'frame over): set ~reference_robot: %s for the same merged frame in every run'
-                % (ref, others, ref))
 
 
 class MapMerger:
@@ -113,17 +62,11 @@ class MapMerger:
         self.config = config or MergeConfig()
         c = self.config
         self._lock = threading.Lock()
-        self._maps: Dict[str, RobotMap] = {}
-        self._version = 0
-        self._reference: str = c.reference_robot
-        self._reference_fixed = bool(c.reference_robot)   # decide_reference: settled for good
-        self._reference_why = REF_PARAMETER if c.reference_robot else REF_FIRST_BY_NAME
+        self._team = Team(c.reference_robot)   # the maps, their restarts, errors, the reference
         self._workers = PairWorkers(c)   # crops and features of the maps, the worker pool
         self._ledger = PairLedger()      # every per-pair record, the schedule's counters
         self._placements: Dict[str, Placement] = {}
         self._compositor = Compositor(c)   # the patch cache, the last merged grid
-        self._lives: Dict[str, int] = {}   # per robot: how often it was forgotten
-        self._errors: Dict[str, str] = {}
         self._graph_key = None    # the links the last pose-graph placement was made of
         # (reference, per robot: how the joint refinement last took it, _Refined) (_joint)
         self._joint_key = None
@@ -151,47 +94,38 @@ class MapMerger:
     def reference(self) -> str:
         """The reference robot: ``reference_robot``, or one proposed, or else the first robot
         by name among those with a map until another robot is merged with it
-        (:func:`decide_reference`); '' before any map."""
+        (:func:`team.decide_reference`); '' before any map."""
         with self._lock:
-            return self._reference_locked()
-
-    def _reference_locked(self) -> str:
-        return self._reference
+            return self._team.reference
 
     def reference_choice(self) -> ReferenceChoice:
         with self._lock:
-            return ReferenceChoice(self._reference, self._reference_fixed, self._reference_why,
-                                   tuple(sorted(self._maps)))
+            return self._team.choice()
 
     def propose_reference(self, name: str) -> str:
         """Make ``name`` the reference for good unless one is fixed already (``reference_robot``,
         or a previous choice: the merged frame never changes once fixed). Returns the
         reference."""
         with self._lock:
-            if not self._reference_fixed:
+            if self._team.propose():
                 self._set_reference_locked(name)
-                self._reference_fixed = True
-                self._reference_why = REF_PROPOSED
-            return self._reference
+            return self._team.reference
 
     def _set_reference_locked(self, name: str) -> None:
-        if name == self._reference:
+        if name == self._team.reference:
             return
         # Every placement is a pose in the former reference's frame: only the new reference is
         # placed (at identity) until the next cycle places the others under it (a cycle under
         # way with the former one is discarded, see _place)
-        old, self._reference = self._reference, name
+        old, self._team.reference = self._team.reference, name
         self._placements.clear()
         self._compositor.forget()
         self._graph_key = None
-        if old and name in self._maps:
+        if old and name in self._team.maps:
             self._placements[name] = Placement(np.eye(3), 1.0, 1.0, 0, '', (name,), time.time())
 
     def _settle_reference_locked(self) -> None:
-        ref, fixed = decide_reference(self._reference, self._reference_fixed, list(self._maps),
-                                      list(self._placements))
-        self._set_reference_locked(ref)
-        self._reference_fixed = fixed
+        self._set_reference_locked(self._team.settle(list(self._placements)))
 
     def update_map(self, name: str, grid: Grid) -> Optional[str]:
         """Take a robot's new grid (already validated, see :func:`grid.make_grid`).
@@ -201,21 +135,14 @@ class MapMerger:
         merged map shows only the new map's cells.
         """
         with self._lock:
-            prev = self._maps.get(name)
-            if prev is not None and same_grid(prev.raw, grid):
-                prev.received = time.time()   # republished unchanged: nothing to recompute
-                self._errors.pop(name, None)
-                return None
-            event = None
-            if prev is not None and _restarted(prev.raw, grid):
-                event = ('map of %s restarted (%dx%d cells -> %dx%d): its transform is forgotten '
-                         'and will be estimated again' % (name, prev.raw.width, prev.raw.height,
-                                                           grid.width, grid.height))
+            if self._team.republished(name, grid):
+                return None           # nothing to recompute
+            new = name not in self._team.maps
+            event = self._team.restart(name, grid)
+            if event:
                 self._forget_locked(name)
-            self._version += 1
-            self._maps[name] = RobotMap(name, grid, self._version, time.time(), life=self._lives.get(name, 0))
-            self._errors.pop(name, None)
-            if prev is None:
+            self._team.take(name, grid)
+            if new:
                 self._settle_reference_locked()
         if self._default_thresholds():
             # Classify the map once, as it arrives, outside the lock (a big canvas takes a
@@ -226,9 +153,9 @@ class MapMerger:
     def _forget_locked(self, name: str) -> None:
         # an estimation cycle under way still holds the maps of the robot's former life: what
         # it derives from them must not come back (see _from_former_life_locked)
-        self._lives[name] = self._lives.get(name, 0) + 1
+        self._team.forget(name)
         had = self._ledger.forget(name) or name in self._placements
-        if name == self._reference:
+        if name == self._team.reference:
             # Every placement is a pose in the reference's frame, which just moved.
             self._placements.clear()
             self._compositor.forget()
@@ -240,12 +167,12 @@ class MapMerger:
     def report_error(self, name: str, reason: str) -> None:
         """Remember why a robot's last input was refused (shown in status)."""
         with self._lock:
-            self._errors[name] = reason
+            self._team.errors[name] = reason
 
     def remove_robot(self, name: str) -> None:
         """Forget a robot entirely: its map leaves the merge, its links are dropped."""
         with self._lock:
-            self._maps.pop(name, None)
+            self._team.maps.pop(name, None)
             self._forget_locked(name)
             self._settle_reference_locked()
 
@@ -346,8 +273,8 @@ class MapMerger:
                 return None
             given = self.priors()
             with self._lock:
-                grids = {r: self._maps[r].raw for r, p in self._spawn_poses.items()
-                         if given.get(r) == p and r in self._maps}
+                grids = {r: self._team.maps[r].raw for r, p in self._spawn_poses.items()
+                         if given.get(r) == p and r in self._team.maps}
             priors = {r: self._spawn_poses[r] for r in grids}
             seen = tuple(sorted((r, id(g)) for r, g in grids.items()))
             if seen == self._spawn_checked:
@@ -379,8 +306,8 @@ class MapMerger:
         """(reference, maps at the reference's resolution); maps empty before the reference
         has a map (nothing can be placed without it)."""
         with self._lock:
-            ref = self._reference_locked()
-            maps = dict(self._maps)
+            ref = self._team.reference
+            maps = dict(self._team.maps)
         if ref not in maps:
             return ref, {}
         res = maps[ref].raw.resolution
@@ -520,13 +447,13 @@ class MapMerger:
     def frames(self) -> Dict[str, str]:
         """Map frame id of every robot (from its grid's header)."""
         with self._lock:
-            return {n: (m.raw.frame_id or n + '/map') for n, m in self._maps.items()}
+            return self._team.frames()
 
     def status(self) -> Dict[str, RobotStatus]:
         """Per robot: merged or not, placement, last pair attempt, last input error."""
         with self._lock:
-            return robot_statuses(self._maps, self._errors, self._ledger.results, self._ledger.links,
-                                  self._placements, self._fields, self._reference_locked())
+            return robot_statuses(self._team.maps, self._team.errors, self._ledger.results, self._ledger.links,
+                                  self._placements, self._fields, self._team.reference)
 
     def export_state(self) -> Dict:
         """Verified links and placements as plain data: what the state file holds
@@ -534,7 +461,7 @@ class MapMerger:
         with self._lock:
             edges = [link_dict(e) for e in self._ledger.links.values()]
             placements = {n: placement_dict(p) for n, p in self._placements.items()}
-            return {'reference': self._reference_locked(), 'edges': edges, 'placements': placements}
+            return {'reference': self._team.reference, 'edges': edges, 'placements': placements}
 
     def restore_state(self, state: Dict) -> int:
         """Take links saved by :meth:`export_state`; each is verified again on the grids before
@@ -571,9 +498,7 @@ class MapMerger:
         return events
 
     def _from_former_life_locked(self, m: RobotMap) -> bool:
-        """True when ``m`` (from a cycle's snapshot) is a map the robot had before it was
-        forgotten (its map restarted, or it was removed) while the cycle ran."""
-        return self._lives.get(m.name, 0) != m.life
+        return self._team.from_former_life(m)
 
     def _default_thresholds(self) -> bool:
         c = self.config
@@ -694,7 +619,7 @@ class MapMerger:
         with self._lock:
             if ref in maps and self._from_former_life_locked(maps[ref]):
                 return []            # the reference restarted meanwhile: every placement is void
-            if ref != self._reference:
+            if ref != self._team.reference:
                 return []            # another robot became the reference meanwhile: as void
             # robots forgotten since the cycle began stay unplaced until estimated again
             gone = {n for n in new if n in maps and self._from_former_life_locked(maps[n])}
@@ -831,14 +756,3 @@ class _Refined(NamedTuple):
     anchor: np.ndarray      # 3x3, the links' pose it was refined from
     pose: np.ndarray        # 3x3, the pose it was refined to
     known: int              # its map's known cells
-
-
-def _restarted(old: Grid, new: Grid) -> bool:
-    """gmapping only ever grows its grid (same or larger, origin moving outwards) and keeps
-    what it knew, so a grid that shrank or lost most of its known cells is a new map."""
-    if new.width < old.width or new.height < old.height:
-        return True
-    known_old = int(np.count_nonzero(old.data >= 0))
-    known_new = int(np.count_nonzero(new.data >= 0))
-    return known_old > 1000 and known_new < 0.5 * known_old
-

@@ -332,7 +332,7 @@ def test_prior_set_and_cleared_while_running(intel):
 # -- which robot is the reference (the merged frame is its map frame) when none is given
 
 def test_decide_reference_follows_the_first_name_with_a_map_until_another_robot_is_merged():
-    from multi_map_merge.core.merger import decide_reference
+    from multi_map_merge.core.team import decide_reference
     assert decide_reference('', False, [], []) == ('', False)
     assert decide_reference('', False, ['tb3_1'], []) == ('tb3_1', False)
     # a lower name's map comes while the merge is tb3_1's alone: it takes the reference over
@@ -349,7 +349,7 @@ def test_decide_reference_follows_the_first_name_with_a_map_until_another_robot_
 def test_the_reference_does_not_depend_on_which_map_came_first(ps, order):
     """Maps fed in any order before a cycle: the reference is a (first by name), fixed once b
     and c are merged with it, and b, c are placed in a's frame."""
-    from multi_map_merge.core.merger import REF_FIRST_BY_NAME
+    from multi_map_merge.core.team import REF_FIRST_BY_NAME
     m = MapMerger(MergeConfig())
     for n in order:
         m.update_map(n, ps['abc'.index(n)][0])
@@ -398,7 +398,7 @@ def test_a_cycle_begun_under_a_former_reference_places_nothing(ps):
 
 
 def test_a_given_or_proposed_reference_is_fixed_from_the_start(ps):
-    from multi_map_merge.core.merger import REF_PARAMETER, REF_PROPOSED
+    from multi_map_merge.core.team import REF_PARAMETER, REF_PROPOSED
     m = MapMerger(MergeConfig(reference_robot='c'))
     m.update_map('a', ps[0][0])
     assert (m.reference, m.reference_choice().fixed, m.reference_choice().why) == ('c', True, REF_PARAMETER)

@@ -179,7 +179,7 @@ def _worked_here(config, maps):
     for name, g in maps.items():
         m.update_map(name, g)
     m.estimate()
-    cells = sum(m._workers.crop(r)[0].size for r in m._maps.values())
+    cells = sum(m._workers.crop(r)[0].size for r in m._team.maps.values())
     return cache._DERIVED_OWNER == m._workers.uid, cells
 
 
