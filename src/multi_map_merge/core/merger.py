@@ -19,12 +19,11 @@ import dataclasses
 import math
 import threading
 import time
-from typing import Dict, List, NamedTuple, Optional, Sequence, Set, Tuple
+from typing import Dict, List, Optional, Sequence, Set, Tuple
 
 import numpy as np
 
-from . import corroborate, deform, joint, links, placement, schedule, spawn, verify
-from .composite import lattice_for
+from . import corroborate, links, placement, schedule, spawn, verify
 from .compositor import Compositor
 from .config import MergeConfig
 from .grid import DEFAULT_FREE_THRESH, DEFAULT_OCC_THRESH, Grid
@@ -32,12 +31,13 @@ from .ledger import PairLedger
 from .links import Link
 from .pair import PairResult, align_pair
 from .placement import Placement
+from .placer import Placer
 from .priors import PriorRefused, in_priors_frame
 from .robot_map import RobotMap
 from .state import link_dict, link_from_dict, placement_dict
 from .status import RobotStatus, robot_statuses
 from .team import ReferenceChoice, Team
-from .transforms import cell_to_metric, image_to_pose, pose_to_image, within
+from .transforms import image_to_pose, pose_to_image
 from .workers import PairWorkers, workers_count
 
 # refresh: a kept link is tracked again with its covariance once its maps' known cells (the
@@ -45,11 +45,6 @@ from .workers import PairWorkers, workers_count
 REFRESH_GROWTH = 1.1
 # refresh: links tracked at once, per worker
 REFRESH_BATCH = 4
-# with ~refresh_links, a cycle refines a robot whose map changed (its anchor did not move) once
-# its known cells grew by this factor since its last refinement; a smaller change waits for
-# the spare time between cycles (a grown map moves its walls against the others' rarely)
-REFINE_GROWTH = 1.1
-
 #: what a pair's result kept by MapMerger._keep comes of: a cycle's plan, the spare time's
 #: refresh, or links of little evidence that corroborate each other
 PLANNED, REFRESHED, CORROBORATED = 'planned', 'refreshed', 'corroborated'
@@ -67,12 +62,8 @@ class MapMerger:
         self._ledger = PairLedger()      # every per-pair record, the schedule's counters
         self._placements: Dict[str, Placement] = {}
         self._compositor = Compositor(c)   # the patch cache, the last merged grid
-        self._graph_key = None    # the links the last pose-graph placement was made of
-        # (reference, per robot: how the joint refinement last took it, _Refined) (_joint)
-        self._joint_key = None
-        # bend_maps: per bent map, (the map's version it was fitted to, its correction field)
-        self._fields: Dict[str, Tuple[int, deform.Field]] = {}
-        self._fields_key = None   # the maps and placements the fields were fitted to (_bend)
+        # links to placements: the pose graph, the joint refinement, the bent maps' fields
+        self._placer = Placer(c, self._workers, self._lock)
         self.state_version = 0    # bumped whenever links or placements change (for persistence)
         self._prior_epoch = 0     # bumped when a prior changes: a cycle begun before is discarded
         # the priors in use (:meth:`priors`): the configured ones until some are given while running
@@ -120,7 +111,7 @@ class MapMerger:
         old, self._team.reference = self._team.reference, name
         self._placements.clear()
         self._compositor.forget()
-        self._graph_key = None
+        self._placer.forget_graph()
         if old and name in self._team.maps:
             self._placements[name] = Placement(np.eye(3), 1.0, 1.0, 0, '', (name,), time.time())
 
@@ -299,8 +290,7 @@ class MapMerger:
             self._ledger.reset()
             self._placements.clear()
             self._compositor.forget()
-            self._fields.clear()
-            self._fields_key = None
+            self._placer.forget_fields()
 
     def _snapshot(self) -> Tuple[str, Dict[str, RobotMap]]:
         """(reference, maps at the reference's resolution); maps empty before the reference
@@ -342,7 +332,7 @@ class MapMerger:
         if self._corroborate(maps):
             events += self._place(maps, ref)
         # (5) past rigid: every placed map bent onto the walls of the others, for the merged map
-        self._bend(maps, ref)
+        self._placer.bend(maps, ref, self.placements())
         return events
 
     def refresh(self, budget: float) -> List[str]:
@@ -381,24 +371,14 @@ class MapMerger:
             moved = self.state_version != version
         # robots whose map changed too little for a cycle to refine them (REFINE_GROWTH), a
         # batch of them
-        pending = self._refinement_pending(maps, ref)[:batch] if time.monotonic() < deadline else []
+        with self._lock:
+            placed = set(self._placements)
+        pending = self._placer.refinement_pending(maps, ref, placed)[:batch] if time.monotonic() < deadline else []
         if not moved and not pending:
             return []
         events = self._place(maps, ref, also=set(pending))
-        self._bend(maps, ref)
+        self._placer.bend(maps, ref, self.placements())
         return events
-
-    def _refinement_pending(self, maps: Dict[str, RobotMap], ref: str) -> List[str]:
-        """The placed robots whose map changed since the joint refinement last took them
-        (:meth:`_joint`), those whose known cells grew most since first."""
-        with self._lock:
-            last = self._joint_key
-            placed = set(self._placements)
-        if not self.config.joint_placement or last is None or last[0] != ref:
-            return []
-        grown = [(-self._map_facts(maps[n]).known / float(max(1, r.known)), n) for n, r in last[1].items()
-                 if n in placed and n in maps and maps[n].key != r.map_key]
-        return [n for _, n in sorted(grown)]
 
     def _corroborate(self, maps: Dict[str, RobotMap]) -> List[str]:
         """Keep the pair results refused only for too little evidence that corroborate each
@@ -422,7 +402,7 @@ class MapMerger:
         ref, maps = self._snapshot()
         with self._lock:
             placements = dict(self._placements)
-            fields = dict(self._fields)
+            fields = dict(self._placer.fields)
         if not maps:
             return None
         return self._compositor.compose(maps, placements, fields, ref)
@@ -453,7 +433,7 @@ class MapMerger:
         """Per robot: merged or not, placement, last pair attempt, last input error."""
         with self._lock:
             return robot_statuses(self._team.maps, self._team.errors, self._ledger.results, self._ledger.links,
-                                  self._placements, self._fields, self._team.reference)
+                                  self._placements, self._placer.fields, self._team.reference)
 
     def export_state(self) -> Dict:
         """Verified links and placements as plain data: what the state file holds
@@ -511,7 +491,7 @@ class MapMerger:
 
     def _map_facts(self, m: RobotMap) -> schedule.MapFacts:
         """What the schedule needs of a map (:class:`schedule.MapFacts`), once per version."""
-        return m.memo('facts', lambda: _map_facts(m.grid, m.version, self.config))
+        return schedule.facts_of(m, self.config)
 
     def _plan(self, maps: Dict[str, RobotMap], ref: str) -> schedule.Plan:
         """The cycle's pair work (:func:`schedule.plan`): pairs (parent, child) whose maps changed
@@ -585,37 +565,10 @@ class MapMerger:
         """Place every robot from the verified links (see :mod:`placement`) and keep, per
         robot, the best placement seen; returns the events (merged, improved). ``also``:
         robots the joint refinement takes if their map changed at all (:meth:`_joint`)."""
-        c = self.config
         with self._lock:
             edges = dict(self._ledger.links)
             old = dict(self._placements)
-        # the chain whose weakest link is most reliable, from the reference
-        best = placement.widest_paths(edges, maps, ref)
-        # every verified link at once, where they form cycles (kept if every link agrees)
-        graph_key = None
-        if c.pose_graph:
-            graph, key = placement.graph_links(edges, best)
-            with self._lock:
-                same = key == self._graph_key
-            if same:
-                graph_key = key              # nothing changed: the kept placements stand
-            else:
-                poses = placement.graph_poses(best, graph, ref, placement.link_covs(edges, graph))
-                if poses is not None:
-                    graph_key = key
-                    for n in best:
-                        best[n].T = poses[n]
-        with self._lock:
-            regraphed = graph_key is not None and graph_key != self._graph_key
-            self._graph_key = graph_key
-        # robots with no chain at their initial pose, when trusted
-        placement.add_priors(c, best, maps, ref, self.priors())
-        # the kept placement stays unless the new one is better
-        new, events = placement.hysteresis(c, best, old, edges, ref, regraphed)
-        # every placement refined against every placed map it overlaps, when one was adopted anew
-        new = self._joint(maps, new, old, ref, also or set())
-        # how well each is pinned: its links' covariances, along its chain or by the graph
-        placement.pin(c, new, edges, ref, graph_key is not None, self._ledger.drift_covs)
+        new, events = self._placer.place(maps, ref, edges, old, self.priors, self._ledger.drift_covs, also or set())
         with self._lock:
             if ref in maps and self._from_former_life_locked(maps[ref]):
                 return []            # the reference restarted meanwhile: every placement is void
@@ -631,106 +584,6 @@ class MapMerger:
             self._settle_reference_locked()   # fixed once another robot is merged with it
         return events
 
-    def _joint(self, maps: Dict[str, RobotMap], new: Dict[str, Placement], old: Dict[str, Placement],
-               ref: str, also: Set[str]) -> Dict[str, Placement]:
-        """The placements ``new`` (after hysteresis) refined by :mod:`joint` against each other,
-        the reference and robots at their prior fixed; a robot it moves gets a new
-        :class:`Placement` (its ``graph_T`` the links' pose). Refines only the robots whose
-        inputs changed since they were last refined: their map, or their anchor (the links'
-        pose) by more than SAME_POSE (the reference's map: its neighbours); the others keep the
-        pose they were refined to, so that a team's cost per round of map updates grows with
-        the team, not with its square. With ``refresh_links``, a map that changed counts only
-        once its known cells grew by REFINE_GROWTH since its last refinement, unless it is one
-        of ``also`` (the spare time's placement, :meth:`refresh`, takes the others). A cycle in
-        which nothing changed cannot move a robot, and a move smaller than SAME_POSE keeps the
-        robot's placement as it was (a map that grew a little does not move its TF)."""
-        c = self.config
-        if not c.joint_placement:
-            return new
-        linked = [n for n, p in sorted(new.items()) if n in maps and (n == ref or p.via != placement.PRIOR)]
-        robots = {}
-        for n in linked:
-            r = self._joint_robot(maps[n])
-            if r is not None:
-                robots[n] = r
-        if ref not in robots:
-            return new
-        anchors = {n: (new[n].graph_T if new[n].graph_T is not None else new[n].T) for n in robots}
-        known = {n: self._map_facts(maps[n]).known for n in robots}
-        with self._lock:
-            last = self._joint_key
-        moving = None                  # every robot, from its anchor
-        current = {n: new[n].T for n in robots}
-        if last is not None and last[0] == ref and set(last[1]) <= set(robots):
-            # the robots whose map, or whose anchor beyond SAME_POSE, changed since they were
-            # refined (a robot new among them too); the reference's neighbours for the reference.
-            # The others keep the pose they were refined to (a placement adopted anew with an
-            # anchor that moved less, as the pose graph is solved again, too)
-            moving = {n for n in robots if n not in last[1]
-                      or not within(anchors[n], last[1][n].anchor, joint.SAME_POSE)
-                      or (last[1][n].map_key != maps[n].key
-                          and (n in also or not c.refresh_links or known[n] >= REFINE_GROWTH * last[1][n].known))}
-            current.update({n: last[1][n].pose for n in robots if n not in moving})
-            if ref in moving:
-                moving.update(joint.neighbours(robots, current, ref))
-            if not moving:
-                moving = set()
-        poses = joint.refine_placements(robots, anchors, ref, lattice_for(maps[ref].grid), c.agreement_tolerance,
-                                        current, moving, self._workers.runner(maps)) if moving != set() else current
-        with self._lock:
-            kept = {} if moving is None or last is None else dict(last[1])
-            kept.update({n: _Refined(maps[n].key, anchors[n], poses[n], known[n])
-                         for n in robots if moving is None or n in moving})
-            self._joint_key = (ref, {n: kept[n] for n in robots if n in kept})
-        out = dict(new)
-        for n, T in poses.items():
-            if not within(T, new[n].T, joint.SAME_POSE):
-                moved = not np.array_equal(T, anchors[n])
-                out[n] = dataclasses.replace(new[n], T=T, graph_T=anchors[n] if moved else None)
-        return out
-
-    def _joint_robot(self, m: RobotMap) -> Optional[joint.Robot]:
-        """What the joint refinement needs of a map (:class:`joint.Robot`), once per version."""
-        c = self.config
-        g = m.grid
-        return m.memo('joint', lambda: joint.Robot.of(g, g.levels(c.free_thresh, c.occupied_thresh),
-                                                      g.known_values(c.free_thresh, c.occupied_thresh)))
-
-    def _bend(self, maps: Dict[str, RobotMap], ref: str) -> None:
-        """Fit the correction field of every placed map (:mod:`deform`) when ``bend_maps`` is
-        on and a map or a placement changed since they were fitted; a map whose field is not
-        fitted (it pairs with no other) is composited rigidly."""
-        c = self.config
-        if not c.bend_maps:
-            return
-        with self._lock:
-            placed = {n: p.T for n, p in self._placements.items() if n in maps}
-        key = (ref, tuple((n, maps[n].key, T.tobytes()) for n, T in sorted(placed.items())))
-        with self._lock:
-            if key == self._fields_key:
-                return
-        walls = {}
-        for n in placed:
-            g = maps[n].grid
-            walls[n] = deform.wall_points(g.levels(c.free_thresh, c.occupied_thresh), g.resolution, g.origin)
-        fields = deform.fit_fields(walls, placed, ref, c.bend_node_spacing, c.map_drift,
-                                   math.radians(c.map_drift_yaw))
-        with self._lock:
-            self._fields = {n: (maps[n].version, f) for n, f in fields.items()}
-            self._fields_key = key
-
-
-def _map_facts(g: Grid, version: int, c: MergeConfig) -> schedule.MapFacts:
-    """What the schedule needs of a grid of map ``version`` (:class:`schedule.MapFacts`)."""
-    box = g.known_box(c.free_thresh, c.occupied_thresh)
-    corners = None
-    if box is not None:
-        r0, r1, c0, c1 = box
-        W = cell_to_metric(g.resolution, g.origin)
-        cells = np.array([[c0, r0], [c1, r0], [c0, r1], [c1, r1]], np.float64)
-        corners = cells @ W[:2, :2].T + W[:2, 2]
-    known = int(np.count_nonzero(g.levels(c.free_thresh, c.occupied_thresh)))
-    return schedule.MapFacts(version, known, corners)
 
 
 def _versions(maps: Dict[str, RobotMap]) -> Dict[str, int]:
@@ -747,12 +600,3 @@ def _as_tracks(maps: Dict[str, RobotMap], poses: Dict[Tuple[str, str], np.ndarra
         pa, ch = maps[a].grid, maps[b].grid
         out[(a, b)] = (pose_to_image(T, pa.resolution, pa.origin, ch.resolution, ch.origin), (a, b) in pin)
     return out
-
-
-class _Refined(NamedTuple):
-    """A robot as the joint refinement last took it (:meth:`MapMerger._joint`)."""
-
-    map_key: tuple          # its map's RobotMap.key
-    anchor: np.ndarray      # 3x3, the links' pose it was refined from
-    pose: np.ndarray        # 3x3, the pose it was refined to
-    known: int              # its map's known cells
