@@ -23,6 +23,7 @@ from typing import Dict, List, Optional, Sequence, Set, Tuple
 
 import numpy as np
 
+from ..runtime.pool import workers_count
 from . import corroborate, links, placement, schedule, spawn, verify
 from .compositor import Compositor
 from .config import MergeConfig
@@ -38,7 +39,7 @@ from .state import link_dict, link_from_dict, placement_dict
 from .status import RobotStatus, robot_statuses
 from .team import ReferenceChoice, Team
 from .transforms import image_to_pose, pose_to_image
-from .workers import PairWorkers, workers_count
+from .workers import PairWorkers
 
 # refresh: a kept link is tracked again with its covariance once its maps' known cells (the
 # product of the two) grew by this factor since the covariance was computed
