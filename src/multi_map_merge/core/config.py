@@ -14,7 +14,7 @@ from . import parameters as _params
 class MergeConfig:
     """The merger's and the node's parameters (:data:`.parameters.MERGER`, :data:`.parameters.NODE`):
     one field per parameter, in the tables' order, its default the table's. Units are the table's
-    (``python3 -m multi_map_merge.core.parameters --markdown`` prints it)."""
+    (``python3 -m multi_map_merge.cli.params_doc --markdown`` prints it)."""
 
     #: our former names: old name -> name (the old one is still read)
     RENAMED: ClassVar[Dict[str, str]] = _params.renamed()

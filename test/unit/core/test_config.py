@@ -11,6 +11,7 @@ import pytest
 import yaml
 from conftest import REPO
 
+from multi_map_merge.cli import params_doc
 from multi_map_merge.core import parameters as P
 from multi_map_merge.core.config import MergeConfig
 
@@ -65,7 +66,7 @@ def test_every_parameter_has_a_unit_or_none_a_meaning_and_a_type():
 
 def test_committed_yaml_is_generated_from_the_tables():
     """tools/gen_params.py writes it: run it after editing core/parameters.py."""
-    assert read('config', 'map_merge.yaml') == P.yaml_text()
+    assert read('config', 'map_merge.yaml') == params_doc.yaml_text()
 
 
 def test_yaml_names_and_defaults_are_the_tables():
@@ -78,15 +79,15 @@ def test_yaml_names_and_defaults_are_the_tables():
 def test_readme_parameter_table_is_generated_from_the_tables():
     """The block between the markers is tools/gen_params.py's (the README may move it whole)."""
     text = read('README.md')
-    assert text.count(P.README_BEGIN) == 1 and text.count(P.README_END) == 1
-    assert P.markdown_table() in text
+    assert text.count(params_doc.README_BEGIN) == 1 and text.count(params_doc.README_END) == 1
+    assert params_doc.markdown_table() in text
 
 
 def test_no_readme_parameter_row_outside_the_tables():
     """Every row `| ~name | ...` of a README table with a default column is a parameter of the
     tables, with the table's default; none is documented outside the generated block."""
     text = read('README.md')
-    block = text[text.index(P.README_BEGIN):text.index(P.README_END)]
+    block = text[text.index(params_doc.README_BEGIN):text.index(params_doc.README_END)]
     outside = text.replace(block, '')
     header = None
     for line in text.splitlines():
@@ -103,7 +104,7 @@ def test_no_readme_parameter_row_outside_the_tables():
         assert name in ALL, 'README documents ~%s, which no table declares' % name
         assert line not in outside, 'README documents ~%s outside the generated block' % name
         cells = [c.strip() for c in line.strip('|').split(' | ')]
-        assert cells[header.index('default')] == P._md_default(ALL[name]), name
+        assert cells[header.index('default')] == params_doc._md_default(ALL[name]), name
 
 
 def _node_modules():
