@@ -48,8 +48,8 @@ class Placer:
         self._workers = workers      # the worker pool the joint refinement runs in
         self._lock = lock            # the merger's
         self._graph_key = None       # the links the last pose-graph placement was made of
-        # (reference, per robot: how the joint refinement last took it, _Refined) (_joint)
-        self._joint_key: Optional[Tuple[str, Dict[str, _Refined]]] = None
+        # how the joint refinement last took each robot (_joint): (the reference, per robot its _Refined)
+        self._refined: Optional[Tuple[str, Dict[str, _Refined]]] = None
         # bend_maps: per bent map, (the map's version it was fitted to, its correction field)
         self.fields: Dict[str, Tuple[int, deform.Field]] = {}
         self._fields_key = None      # the maps and placements the fields were fitted to (bend)
@@ -105,7 +105,7 @@ class Placer:
         """The placed robots whose map changed since the joint refinement last took them
         (:meth:`_joint`), those whose known cells grew most since first."""
         with self._lock:
-            last = self._joint_key
+            last = self._refined
         if not self.config.joint_placement or last is None or last[0] != ref:
             return []
         grown = [(-schedule.facts_of(maps[n], self.config).known / float(max(1, r.known)), n)
@@ -139,7 +139,7 @@ class Placer:
         anchors = {n: (new[n].graph_T if new[n].graph_T is not None else new[n].T) for n in robots}
         known = {n: schedule.facts_of(maps[n], self.config).known for n in robots}
         with self._lock:
-            last = self._joint_key
+            last = self._refined
         moving = None                  # every robot, from its anchor
         current = {n: new[n].T for n in robots}
         if last is not None and last[0] == ref and set(last[1]) <= set(robots):
@@ -162,7 +162,7 @@ class Placer:
             kept = {} if moving is None or last is None else dict(last[1])
             kept.update({n: _Refined(maps[n].key, anchors[n], poses[n], known[n])
                          for n in robots if moving is None or n in moving})
-            self._joint_key = (ref, {n: kept[n] for n in robots if n in kept})
+            self._refined = (ref, {n: kept[n] for n in robots if n in kept})
         out = dict(new)
         for n, T in poses.items():
             if not within(T, new[n].T, joint.SAME_POSE):
