@@ -63,7 +63,7 @@ def publish(grid):
 
 def worker_peaks_mb():
     """VmHWM of the merger's estimation workers (forkserver children, not ours: read /proc)."""
-    import multi_map_merge.core.workers as mm
+    import multi_map_merge.runtime.pool as mm
     total = 0.0
     if mm._POOL is not None:
         for pid in list(mm._POOL._processes):
@@ -84,9 +84,10 @@ def _hold(fn, *args):
 def start_pool(cfg):
     """Start the merger's worker pool (and import the package in every worker), as the node
     does once at its first cycle; returns the ms it took."""
-    import multi_map_merge.core.workers as mm
+    import multi_map_merge.runtime.pool as mm
+    from multi_map_merge.core.workers import PRELOAD
     t = time.perf_counter()
-    pool = mm._pool(cfg.workers)
+    pool = mm.shared(cfg.workers, PRELOAD)
     if pool is not None:
         from multi_map_merge.core.pair import compute_features
         tiny = np.zeros((8, 8), np.uint8)
@@ -117,16 +118,15 @@ def compose_burst(m):
     when one robot's gmapping map arrived ('live_ms', compose + publish)."""
     comp, pub = [], []
     for _ in range(COMPOSE_REPS):
-        m._patches.clear()
-        m._merged = None
+        m._compositor.reset()
         t = time.perf_counter()
         merged = m.compose()
         comp.append(time.perf_counter() - t)
         pub.append(publish(merged)[0])
-    others = sorted(n for n in m.placements() if n != m._reference)
+    others = sorted(n for n in m.placements() if n != m.reference)
     live = []
     for k in range(COMPOSE_REPS if others else 0):
-        m._patches.pop(others[k % len(others)], None)
+        m._compositor.forget(others[k % len(others)])
         t = time.perf_counter()
         merged = m.compose()
         dt = time.perf_counter() - t
@@ -252,7 +252,7 @@ def main():
     if sys.argv[1] == '--serve-estimate':
         return serve_estimate(json.load(open(sys.argv[2])))
     spec = json.load(open(sys.argv[1]))
-    import multi_map_merge.core.workers as mm
+    import multi_map_merge.runtime.pool as mm
     from multi_map_merge.core.config import MergeConfig
     from multi_map_merge.core.features import FeatureExtractor
     from multi_map_merge.core.mapio import load_map

@@ -65,7 +65,7 @@ def link_cov(m, e):
     cov = getattr(e, 'cov', None)
     if cov is not None:
         return np.asarray(cov)
-    pa, ch = m._maps[e.parent].grid, m._maps[e.child].grid
+    pa, ch = m._team.maps[e.parent].grid, m._team.maps[e.child].grid
     A = pose_to_image(e.T, pa.resolution, pa.origin, ch.resolution, ch.origin)
     p = covariance.pinning(pa.levels(), ch.levels(), A)
     if p is None:
@@ -82,7 +82,7 @@ def err_vec(T, T_true):
 def evaluate(m, truths):
     """(links, robots) records of one merged case; truths: name -> T_world_k."""
     links, robots = [], []
-    for (a, b), e in sorted(m._links.items()):
+    for (a, b), e in sorted(m._ledger.links.items()):
         T_true = inverse(truths[a]) @ truths[b]
         ev = err_vec(e.T, T_true)
         cov = link_cov(m, e)
@@ -115,8 +115,8 @@ def link_inputs(m, truths):
     """[(parent levels, child levels, A, T, parent resolution, origin, true error)] of the kept
     links of a merged case: what calibration recomputes the covariance of."""
     out = []
-    for (a, b), e in sorted(m._links.items()):
-        pa, ch = m._maps[a].grid, m._maps[b].grid
+    for (a, b), e in sorted(m._ledger.links.items()):
+        pa, ch = m._team.maps[a].grid, m._team.maps[b].grid
         A = pose_to_image(e.T, pa.resolution, pa.origin, ch.resolution, ch.origin)
         out.append((pa.levels(), ch.levels(), A, e.T, pa.resolution, pa.origin,
                     err_vec(e.T, inverse(truths[a]) @ truths[b])))

@@ -1,6 +1,7 @@
 #!/usr/bin/env python3
 """Write config/map_merge.yaml and the README's parameter table (between its markers) from the
-parameter tables, src/multi_map_merge/core/parameters.py: run after editing them.
+parameter tables, src/multi_map_merge/core/parameters.py (through multi_map_merge.cli.params_doc):
+run after editing them.
 
     python3 tools/gen_params.py           # write both
     python3 tools/gen_params.py --check   # exit 1 when a committed file differs (as the unit test)
@@ -12,7 +13,7 @@ import sys
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, os.path.join(REPO, 'src'))
 
-from multi_map_merge.core import parameters  # noqa: E402
+from multi_map_merge.cli import params_doc  # noqa: E402
 
 YAML = os.path.join(REPO, 'config', 'map_merge.yaml')
 README = os.path.join(REPO, 'README.md')
@@ -22,7 +23,7 @@ def generated():
     """{path: the text it should have}"""
     with open(README) as f:
         readme = f.read()
-    return {YAML: parameters.yaml_text(), README: parameters.replace_readme_block(readme)}
+    return {YAML: params_doc.yaml_text(), README: params_doc.replace_readme_block(readme)}
 
 
 def main() -> int:

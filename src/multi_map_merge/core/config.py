@@ -1,58 +1,89 @@
 """One typed configuration for the whole merger and its node: :class:`MergeConfig`, whose fields,
-types and defaults are the parameters of :mod:`.parameters` (declared there, nowhere else)."""
+types and defaults are the parameters of :mod:`.parameters` (their meaning, unit and accepted
+values are declared there; a unit test checks the two agree field by field)."""
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Callable, Dict, List, Optional
+from dataclasses import dataclass, field
+from typing import Any, Callable, ClassVar, Dict, List, Optional
 
 from . import parameters as _params
 
 
-def _annotation(p: _params.Parameter) -> Any:
-    return {'bool': bool, 'int': int, 'double': float, 'string': str, 'string list': List[str],
-            'double list': List[float], 'dict': Dict[str, List[float]]}[p.kind]
+@dataclass
+class MergeConfig:
+    """The merger's and the node's parameters (:data:`.parameters.MERGER`, :data:`.parameters.NODE`):
+    one field per parameter, in the tables' order, its default the table's. Units are the table's
+    (``python3 -m multi_map_merge.cli.params_doc --markdown`` prints it)."""
 
+    #: our former names: old name -> name (the old one is still read)
+    RENAMED: ClassVar[Dict[str, str]] = _params.renamed()
 
-def _field(p: _params.Parameter):
-    if isinstance(p.default, (list, dict)):
-        return dataclasses.field(default_factory=p.fresh_default)
-    return dataclasses.field(default=p.default)
+    # -- the merger (parameters.MERGER)
+    reference_robot: str = ''
+    free_thresh: float = 19.6   # percent
+    occupied_thresh: float = 65.0   # percent
+    max_cells: int = 25_000_000   # cells
+    akaze_threshold: float = 0.0003
+    max_features: int = 2000
+    feature_cells: int = 120_000   # cells
+    match_candidates: int = 2
+    match_ratio: float = 0.8
+    ransac_threshold: float = 3.0   # cells
+    ransac_iterations: int = 15_000
+    ransac_hypotheses: int = 8
+    min_matches: int = 10
+    min_inliers: int = 10
+    min_inlier_ratio: float = 0.0
+    few_inliers: int = 21
+    few_inliers_min_agreement: float = 0.96
+    replace_margin: float = 0.02
+    refine: bool = True
+    min_agreement: float = 0.8
+    min_overlap_cells: int = 400   # cells
+    agreement_tolerance: int = 2   # cells
+    pose_graph: bool = True
+    joint_placement: bool = True
+    ambiguity_margin: float = 0.1
+    max_position_sigma: float = 0.1   # m
+    map_drift: float = 0.02   # m/m
+    map_drift_yaw: float = 0.4   # deg/sqrt(m)
+    bend_maps: bool = False
+    bend_node_spacing: float = 2.5   # m
+    initial_poses: Dict[str, List[float]] = field(default_factory=dict)   # m, m, rad
+    initial_pose_tolerance: List[float] = field(default_factory=lambda: [1.0, 0.35])   # m, rad
+    trust_initial_poses: bool = False
+    workers: int = 0   # processes
+    estimation_budget: float = 5.0   # s
+    refresh_links: bool = True
+    dask_scheduler: str = ''
+    # -- the node (parameters.NODE)
+    robot_namespace_pattern: str = 'tb3_*'
+    robots: List[str] = field(default_factory=list)
+    map_topic: str = 'map'
+    map_updates_topic: str = ''
+    merged_map_topic: str = 'map'
+    merged_map_frame: str = 'map'
+    estimation_rate: float = 0.5   # Hz
+    merge_rate: float = 2.0   # Hz
+    discovery_rate: float = 0.5   # Hz
+    tf_rate: float = 20.0   # Hz
+    stale_map_timeout: float = 30.0   # s
+    known_init_poses: bool = False
+    state_file: str = ''
 
+    @classmethod
+    def from_dict(cls, d: Dict[str, Any], warn: Optional[Callable[[str], None]] = None) -> 'MergeConfig':
+        """Build from a mapping (name -> value, as config/map_merge.yaml has them) through the one
+        resolver (:func:`.parameters.resolve_strictly`): values converted to each field's type;
+        m-explore's names and former names read as the node reads them. A value out of range, of
+        the wrong type, or a name no parameter has raises :class:`.parameters.ParameterError` (a
+        ValueError) naming each; warnings (an alias overridden, a deprecated name) go to ``warn``."""
+        res = _params.resolve_strictly(d)
+        if warn is not None:
+            for line in res.warnings:
+                warn(line)
+        return cls(**{p.name: res.values[p.name] for p in _params.config_parameters()})
 
-@classmethod
-def _former_name_wins(cls, given: Dict[str, Any], old: str) -> bool:
-    """Whether ``given`` (parameters by name) is read by the former name ``old`` of a renamed
-    parameter (:attr:`RENAMED`): it is given, and the new name is absent or at its default."""
-    return _params.former_name_wins(given, old)
-
-
-@classmethod
-def _from_dict(cls, d: Dict[str, Any], warn: Optional[Callable[[str], None]] = None):
-    """Build from a mapping (name -> value, as config/map_merge.yaml has them) through the one
-    resolver (:func:`.parameters.resolve_strictly`): values converted to each field's type;
-    m-explore's names and former names read as the node reads them. A value out of range, of
-    the wrong type, or a name no parameter has raises :class:`.parameters.ParameterError` (a
-    ValueError) naming each; warnings (an alias overridden, a deprecated name) go to ``warn``."""
-    res = _params.resolve_strictly(d)
-    if warn is not None:
-        for line in res.warnings:
-            warn(line)
-    return cls(**{p.name: res.values[p.name] for p in _params.config_parameters()})
-
-
-def _to_dict(self) -> Dict[str, Any]:
-    return dataclasses.asdict(self)
-
-
-MergeConfig = dataclasses.make_dataclass(
-    'MergeConfig',
-    [(p.name, _annotation(p), _field(p)) for p in _params.config_parameters()],
-    namespace={
-        '__doc__': 'The merger\'s and the node\'s parameters (:data:`.parameters.MERGER`, '
-                   ':data:`.parameters.NODE`): one field per parameter, its default the table\'s.',
-        'RENAMED': _params.renamed(),   # old name -> new name (the old one is still read)
-        'former_name_wins': _former_name_wins,
-        'from_dict': _from_dict,
-        'to_dict': _to_dict,
-    })
-MergeConfig.__module__ = __name__   # (pickled to the worker processes by this name)
+    def to_dict(self) -> Dict[str, Any]:
+        return dataclasses.asdict(self)

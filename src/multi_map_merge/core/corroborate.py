@@ -18,7 +18,7 @@ from typing import Callable, Dict, List, Set, Tuple
 
 import numpy as np
 
-from .transforms import inverse, pose_distance
+from .transforms import inverse, pose_distance, within
 
 # two poses of a robot closer than this (metres at its map frame's origin, radians) are one
 AGREE = (0.15, math.radians(1.5))
@@ -44,8 +44,8 @@ def corroborated(candidates: Dict[Key, np.ndarray], placed: Dict[str, np.ndarray
             for k2, y2, P2 in links[i + 1:]:
                 if y1 == y2:
                     continue
-                d, a = pose_distance(P1, P2)
-                if d <= AGREE[0] and a <= AGREE[1]:
+                if within(P1, P2, AGREE):
+                    d, a = pose_distance(P1, P2)
                     keys.update((k1, k2))
                     events.append('%s: links of little evidence with %s and %s corroborate each other '
                                   '(%.3f m %.2f deg apart)' % (x, y1, y2, d, math.degrees(a)))

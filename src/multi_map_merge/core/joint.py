@@ -15,7 +15,7 @@ a cell another robot knows counts once, so an overlap with more walls counts mor
 Bounds: the search stays within ``SEARCH_WINDOW`` of the pose the links gave (the *anchor*,
 :attr:`placement.Placement.graph_T`), measured at the centre of the robot's walls (at its map
 frame's origin, metres away, a small turn looks like a jump); a result beyond it, one whose
-walls do not meet clearly better than the anchor's (``BETTER_COST``) or one that verifies
+walls do not meet clearly better than the anchor's (``covariance.BETTER_COST``) or one that verifies
 (:func:`verify.agreement_counts`, summed over the robot's overlaps) worse than the anchor keeps
 the anchor. The window is centred on the anchor, not on the robot's current pose, so the result
 is a function of the maps, the anchors and the other robots' poses only: refining again what
@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Callable, Dict, List, Optional, Protocol, Tuple
+from typing import Callable, Dict, List, Optional, Protocol, Tuple
 
 import cv2
 import numpy as np
@@ -49,9 +49,6 @@ SEARCH_WINDOW = (0.5, math.radians(9.0))
 SAME_POSE = (0.02, math.radians(0.2))
 # block-coordinate rounds over the robots at most (each robot against the others' latest poses)
 ROUNDS = 3
-# mean truncated squared wall distance (cells^2, :mod:`covariance`) by which the found pose must
-# beat the anchor: the same margin a link's search must clear to replace ICP's pose
-BETTER_COST = covariance.BETTER_COST
 # ICP after the search: its pairing gate (cells) shrinks from this to one cell
 ICP_GATE = 2.0
 # wall cells of the robot that must land on cells another robot knows for it to be refined
@@ -290,7 +287,7 @@ def _refine_one(robots: Dict[str, Robot], n: str, anchor: np.ndarray, others: Di
     candidates = [A] if A_icp is None else [A_icp, A]
     before = None
     for cand in candidates:
-        if _cost(field, pts, cand) > cost0 - BETTER_COST or not _within(A0, cand, pivot, res):
+        if _cost(field, pts, cand) > cost0 - covariance.BETTER_COST or not _within(A0, cand, pivot, res):
             continue
         T = inverse(to_window) @ cand @ inverse(r.W)
         if before is None:
@@ -373,8 +370,3 @@ def _counts(parent: Robot, child: Robot, T: np.ndarray, tolerance: int) -> Tuple
     agree, conflict, _ = verify.agreement_counts(parent.levels, child.levels, A, tolerance, (parent.box, child.box))
     return agree, conflict
 
-
-def anchors_changed(new: Dict[str, Any], old: Dict[str, Any]) -> List[str]:
-    """The robots of ``new`` (placements) that are not the very placement of ``old``: the ones
-    adopted anew this cycle."""
-    return [n for n in sorted(new) if new[n] is not old.get(n)]

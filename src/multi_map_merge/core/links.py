@@ -20,7 +20,7 @@ import numpy as np
 
 from .config import MergeConfig
 from .pair import PairResult
-from .transforms import inverse, pose_distance
+from .transforms import inverse, within
 
 # a link re-estimated within this of the kept one (metres, radians) is the same link refined
 SAME_LINK = (0.3, math.radians(3.0))
@@ -87,5 +87,4 @@ def clearly_better(new: float, kept: float) -> bool:
 
 def same_link(T1: np.ndarray, T2: np.ndarray) -> bool:
     """Two estimates of one link that differ by a refinement, not by a different solution."""
-    d, a = pose_distance(T1, T2)
-    return d <= SAME_LINK[0] and a <= SAME_LINK[1]
+    return within(T1, T2, SAME_LINK)

@@ -5,7 +5,7 @@
     --(5) warp + composite--> merged grid, --(6) poses--> TF of every robot's map frame
 
 Frames: the merged frame is the reference robot's map frame (the paper's Map 1; which robot
-that is: :func:`decide_reference`). A robot's
+that is: :func:`team.decide_reference`). A robot's
 *placement* is the pose ``T_merged_k`` of its map frame in the merged frame (metres, radians).
 It is expressed between frames, not grids, so it stays valid while gmapping grows the grid.
 
@@ -19,132 +19,36 @@ import dataclasses
 import math
 import threading
 import time
-from dataclasses import dataclass
-from typing import Dict, List, NamedTuple, Optional, Sequence, Set, Tuple
+from typing import Dict, List, Optional, Sequence, Set, Tuple
 
 import numpy as np
 
-from . import bend, corroborate, deform, drift, joint, links, placement, schedule, spawn, verify
-from .composite import Lattice, Patch, composite, lattice_for, warp_patch
+from ..runtime.pool import workers_count
+from . import corroborate, links, placement, schedule, spawn, verify
+from .compositor import Compositor
 from .config import MergeConfig
-from .grid import DEFAULT_FREE_THRESH, DEFAULT_OCC_THRESH, Grid, same_grid
+from .grid import DEFAULT_FREE_THRESH, DEFAULT_OCC_THRESH, Grid
+from .ledger import PairLedger
 from .links import Link
 from .pair import PairResult, align_pair
 from .placement import Placement
-from .priors import PriorRefused, in_priors_frame, relative_pose
+from .placer import Placer
+from .priors import PriorRefused, in_priors_frame
 from .robot_map import RobotMap
 from .state import link_dict, link_from_dict, placement_dict
-from .transforms import cell_to_metric, image_to_pose, pose_distance, pose_to_image
-from .workers import PairWorkers, workers_count
+from .status import RobotStatus, robot_statuses
+from .team import ReferenceChoice, Team
+from .transforms import image_to_pose, pose_to_image
+from .workers import PairWorkers
 
 # refresh: a kept link is tracked again with its covariance once its maps' known cells (the
 # product of the two) grew by this factor since the covariance was computed
 REFRESH_GROWTH = 1.1
 # refresh: links tracked at once, per worker
 REFRESH_BATCH = 4
-# with ~refresh_links, a cycle refines a robot whose map changed (its anchor did not move) once
-# its known cells grew by this factor since its last refinement; a smaller change waits for
-# the spare time between cycles (a grown map moves its walls against the others' rarely)
-REFINE_GROWTH = 1.1
-
-# a tracked link whose refined pose moved less than this (metres, radians) stays as it is: a
-# changed link places the team again (the pose graph, the joint refinement of its two robots)
-TRACK_MOVE = (0.01, math.radians(0.1))
-
-#: why the reference robot is the one it is (:meth:`MapMerger.reference_choice`)
-REF_PARAMETER = 'parameter'          # config.reference_robot
-REF_PROPOSED = 'proposed'            # propose_reference (the first of config.robots by name)
-REF_FIRST_BY_NAME = 'first by name'  # decide_reference
-
-
-def decide_reference(current: str, fixed: bool, with_maps: Sequence[str],
-                     placed: Sequence[str]) -> Tuple[str, bool]:
-    """(the reference robot, whether it is fixed from now on) when none was given: the first
-    by name among the robots ``with_maps`` while the merge is the reference's map alone (none
-    of the robots ``placed`` relative to ``current`` is another robot); fixed once another is,
-    so that no transform published with a merge ever jumps. The same robots give the same
-    reference whichever map came first (a later map of a lower name takes the reference over
-    only while nothing else is merged). A ``fixed`` reference stays."""
-    if fixed:
-        return current, True
-    if current and any(n != current for n in placed):
-        return current, True
-    return (min(with_maps) if with_maps else ''), False
-
-
-@dataclass
-class ReferenceChoice:
-    """Which robot is the reference, whether it can still change, and why it is that one."""
-
-    robot: str
-    fixed: bool
-    why: str                           # REF_PARAMETER, REF_PROPOSED or REF_FIRST_BY_NAME
-    with_maps: Tuple[str, ...] = ()    # the robots with a map, by name
-
-    def message(self) -> str:
-        """Which robot is the reference (the merged frame is its map frame), why, and how to
-        choose it (the node's ``~reference_robot``), for people; '' before there is one."""
-        ref = self.robot
-        if not ref:
-            return ''
-        if self.why == REF_PARAMETER:
-            return 'reference robot %s (set by ~reference_robot): the merged frame is its map frame' % ref
-        if self.why == REF_PROPOSED:
-            return ('reference robot %s (the first of ~robots by name; set ~reference_robot to choose '
-                    'another): the merged frame is its map frame' % ref)
-        others = ', '.join(self.with_maps)
-        if not self.fixed:
-            return ('reference robot %s for now (the first by name among the robots with a map: %s): the '
-                    'merged frame is its map frame; a robot of a lower name whose map comes before another '
-                    'robot is merged with %s takes it over; set ~reference_robot to fix it' % (ref, others, ref))
-        return ('reference robot %s, fixed now that another robot is merged with it (it was the first by name '
-                'among the robots with a map: %s; a robot whose map comes later does not take the merged '
-                'frame over): set ~reference_robot: %s for the same merged frame in every run'
-                % (ref, others, ref))
-
-
-@dataclass
-class RobotStatus:
-    """What diagnostics show for one robot."""
-
-    merged: bool
-    reference: bool
-    placement: Optional[Placement]
-    last_attempt: Optional[PairResult] = None
-    last_attempt_with: str = ''
-    error: str = ''
-    linked_to: Tuple[str, ...] = ()   # robots it has verified links with
-    # its verified links: (parent, child, 3x3 covariance of (x, y, yaw) of the child's map
-    # frame in the parent's, x, y in metres of the parent's frame, yaw in radians; None if unknown)
-    link_covariances: Tuple[Tuple[str, str, Optional[np.ndarray]], ...] = ()
-    # seconds (time.time()) when its last map arrived (republished unchanged included); None
-    # before any
-    map_received: Optional[float] = None
-    # its verified links whose overlap bends (core/bend.py): (the other robot, metres the
-    # overlap's halves land apart), at least bend.REPORT_BEND, largest first
-    bends: Tuple[Tuple[str, float], ...] = ()
-    # bend_maps: metres the merged map moves its map's walls at most off its placement to meet
-    # the others' (core/deform.py: its field's largest node move); 0 when not bent
-    bent: float = 0.0
-    # its verified links across whose overlap its map and the other's turned apart from their
-    # origins, as both maps' walls show (core/drift.py): (the other robot, radians: its map's
-    # turn less the other's), at least drift.REPORT_TURN, largest first
-    turns: Tuple[Tuple[str, float], ...] = ()
-
-
-def _turns_apart(robot: str, edges: Dict[Tuple[str, str], Link]) -> Tuple[Tuple[str, float], ...]:
-    """Per verified link of ``robot`` whose two maps' turns were both read: the other robot and
-    what ``robot``'s map turned less the other's (radians), where that reaches
-    :data:`drift.REPORT_TURN`; largest first."""
-    out = []
-    for (parent, child), link in edges.items():
-        if robot not in (parent, child) or link.parent_turn is None or link.child_turn is None:
-            continue
-        apart = drift.link_turn(link.parent_turn, link.child_turn)
-        other, apart = (child, apart) if robot == parent else (parent, -apart)
-        if abs(apart) >= drift.REPORT_TURN:
-            out.append((other, apart))
-    return tuple(sorted(out, key=lambda x: -abs(x[1])))
+#: what a pair's result kept by MapMerger._keep comes of: a cycle's plan, the spare time's
+#: refresh, or links of little evidence that corroborate each other
+PLANNED, REFRESHED, CORROBORATED = 'planned', 'refreshed', 'corroborated'
 
 
 class MapMerger:
@@ -154,40 +58,13 @@ class MapMerger:
         self.config = config or MergeConfig()
         c = self.config
         self._lock = threading.Lock()
-        self._maps: Dict[str, RobotMap] = {}
-        self._version = 0
-        self._reference: str = c.reference_robot
-        self._reference_fixed = bool(c.reference_robot)   # decide_reference: settled for good
-        self._reference_why = REF_PARAMETER if c.reference_robot else REF_FIRST_BY_NAME
+        self._team = Team(c.reference_robot)   # the maps, their restarts, errors, the reference
         self._workers = PairWorkers(c)   # crops and features of the maps, the worker pool
-        self._links: Dict[Tuple[str, str], Link] = {}
-        # per pair: the map versions it was last worked on (tracked or aligned), its last
-        # alignment from features, and the links to align again from features rather than track
-        # (their tracking failed, or a prior changed: core/schedule.py)
-        self._tried: Dict[Tuple[str, str], Tuple[int, int]] = {}
-        self._aligned: Dict[Tuple[str, str], schedule.Aligned] = {}
-        self._refreshed: Dict[Tuple[str, str], Tuple[int, int]] = {}   # known cells at its last track or alignment
-        self._pinned: Dict[Tuple[str, str], Tuple[int, int]] = {}      # known cells when its covariance was computed
-        self._track_failed: set = set()
-        self._cycle = 0
-        self._seen_versions: Dict[str, int] = {}   # per robot: its map's version the last cycle saw
-        self._since_slow: Dict[str, int] = {}      # per robot: new versions since its last slow-schedule turn
-        self._facts: Dict[str, Tuple[tuple, schedule.MapFacts]] = {}
-        self._results: Dict[Tuple[str, str], PairResult] = {}
+        self._ledger = PairLedger()      # every per-pair record, the schedule's counters
         self._placements: Dict[str, Placement] = {}
-        self._patches: Dict[str, Tuple[tuple, Optional[Patch]]] = {}
-        self._lives: Dict[str, int] = {}   # per robot: how often it was forgotten
-        self._errors: Dict[str, str] = {}
-        self._restored: Dict[Tuple[str, str], Link] = {}
-        self._merged = None       # (patch identities, merged grid) of the last compose
-        self._graph_key = None    # the links the last pose-graph placement was made of
-        # (reference, per robot: how the joint refinement last took it, _Refined) (_joint)
-        self._joint_key = None
-        self._joint_robots: Dict[str, Tuple[tuple, Optional[joint.Robot]]] = {}   # per robot, per map key
-        self._drift_covs: Dict[Tuple[str, str], tuple] = {}   # per link, its drift's covariance (placement.pin)
-        # bend_maps: per bent map, (the map's version it was fitted to, its correction field)
-        self._fields: Dict[str, Tuple[int, deform.Field]] = {}
-        self._fields_key = None   # the maps and placements the fields were fitted to (_bend)
+        self._compositor = Compositor(c)   # the patch cache, the last merged grid
+        # links to placements: the pose graph, the joint refinement, the bent maps' fields
+        self._placer = Placer(c, self._workers, self._lock)
         self.state_version = 0    # bumped whenever links or placements change (for persistence)
         self._prior_epoch = 0     # bumped when a prior changes: a cycle begun before is discarded
         # the priors in use (:meth:`priors`): the configured ones until some are given while running
@@ -209,47 +86,38 @@ class MapMerger:
     def reference(self) -> str:
         """The reference robot: ``reference_robot``, or one proposed, or else the first robot
         by name among those with a map until another robot is merged with it
-        (:func:`decide_reference`); '' before any map."""
+        (:func:`team.decide_reference`); '' before any map."""
         with self._lock:
-            return self._reference_locked()
-
-    def _reference_locked(self) -> str:
-        return self._reference
+            return self._team.reference
 
     def reference_choice(self) -> ReferenceChoice:
         with self._lock:
-            return ReferenceChoice(self._reference, self._reference_fixed, self._reference_why,
-                                   tuple(sorted(self._maps)))
+            return self._team.choice()
 
     def propose_reference(self, name: str) -> str:
         """Make ``name`` the reference for good unless one is fixed already (``reference_robot``,
         or a previous choice: the merged frame never changes once fixed). Returns the
         reference."""
         with self._lock:
-            if not self._reference_fixed:
+            if self._team.propose():
                 self._set_reference_locked(name)
-                self._reference_fixed = True
-                self._reference_why = REF_PROPOSED
-            return self._reference
+            return self._team.reference
 
     def _set_reference_locked(self, name: str) -> None:
-        if name == self._reference:
+        if name == self._team.reference:
             return
         # Every placement is a pose in the former reference's frame: only the new reference is
         # placed (at identity) until the next cycle places the others under it (a cycle under
         # way with the former one is discarded, see _place)
-        old, self._reference = self._reference, name
+        old, self._team.reference = self._team.reference, name
         self._placements.clear()
-        self._patches.clear()
-        self._graph_key = None
-        if old and name in self._maps:
+        self._compositor.forget()
+        self._placer.forget_graph()
+        if old and name in self._team.maps:
             self._placements[name] = Placement(np.eye(3), 1.0, 1.0, 0, '', (name,), time.time())
 
     def _settle_reference_locked(self) -> None:
-        ref, fixed = decide_reference(self._reference, self._reference_fixed, list(self._maps),
-                                      list(self._placements))
-        self._set_reference_locked(ref)
-        self._reference_fixed = fixed
+        self._set_reference_locked(self._team.settle(list(self._placements)))
 
     def update_map(self, name: str, grid: Grid) -> Optional[str]:
         """Take a robot's new grid (already validated, see :func:`grid.make_grid`).
@@ -259,21 +127,14 @@ class MapMerger:
         merged map shows only the new map's cells.
         """
         with self._lock:
-            prev = self._maps.get(name)
-            if prev is not None and same_grid(prev.raw, grid):
-                prev.received = time.time()   # republished unchanged: nothing to recompute
-                self._errors.pop(name, None)
-                return None
-            event = None
-            if prev is not None and _restarted(prev.raw, grid):
-                event = ('map of %s restarted (%dx%d cells -> %dx%d): its transform is forgotten '
-                         'and will be estimated again' % (name, prev.raw.width, prev.raw.height,
-                                                           grid.width, grid.height))
+            if self._team.republished(name, grid):
+                return None           # nothing to recompute
+            new = name not in self._team.maps
+            event = self._team.restart(name, grid)
+            if event:
                 self._forget_locked(name)
-            self._version += 1
-            self._maps[name] = RobotMap(name, grid, self._version, time.time(), life=self._lives.get(name, 0))
-            self._errors.pop(name, None)
-            if prev is None:
+            self._team.take(name, grid)
+            if new:
                 self._settle_reference_locked()
         if self._default_thresholds():
             # Classify the map once, as it arrives, outside the lock (a big canvas takes a
@@ -284,34 +145,26 @@ class MapMerger:
     def _forget_locked(self, name: str) -> None:
         # an estimation cycle under way still holds the maps of the robot's former life: what
         # it derives from them must not come back (see _from_former_life_locked)
-        self._lives[name] = self._lives.get(name, 0) + 1
-        had = name in self._placements or any(name in k for k in self._links)
-        if name == self._reference:
+        self._team.forget(name)
+        had = self._ledger.forget(name) or name in self._placements
+        if name == self._team.reference:
             # Every placement is a pose in the reference's frame, which just moved.
             self._placements.clear()
-            self._patches.clear()
+            self._compositor.forget()
         self._placements.pop(name, None)
-        self._patches.pop(name, None)
-        self._joint_robots.pop(name, None)
-        for k in [k for k in self._links if name in k]:
-            del self._links[k]
-        for k in [k for k in list(self._drift_covs) if name in k]:
-            self._drift_covs.pop(k, None)
-        for k in [k for k in self._restored if name in k]:
-            del self._restored[k]
+        self._compositor.forget(name)
         if had:
             self.state_version += 1
 
     def report_error(self, name: str, reason: str) -> None:
         """Remember why a robot's last input was refused (shown in status)."""
         with self._lock:
-            self._errors[name] = reason
+            self._team.errors[name] = reason
 
     def remove_robot(self, name: str) -> None:
         """Forget a robot entirely: its map leaves the merge, its links are dropped."""
         with self._lock:
-            self._maps.pop(name, None)
-            self._workers.forget(name)
+            self._team.maps.pop(name, None)
             self._forget_locked(name)
             self._settle_reference_locked()
 
@@ -329,7 +182,6 @@ class MapMerger:
         (the gate of :func:`pair.contradicts_prior`), its kept links that contradict it are dropped
         now, and the placements made from priors (``trust_initial_poses``) are made again. An
         estimation cycle that began before the change is discarded. Returns what was dropped."""
-        events = []
         with self._lock:
             priors = dict(self._priors)
             if pose is None:
@@ -338,25 +190,7 @@ class MapMerger:
                 priors[name] = [float(v) for v in pose]
             self._use_priors_locked(priors)
             self._prior_epoch += 1
-            for k in [k for k in self._tried if name in k]:
-                del self._tried[k]
-            for k in [k for k in self._aligned if name in k]:
-                del self._aligned[k]
-            # its kept links too are aligned again from features (not tracked): under the new prior
-            # another solution may be the right one
-            self._track_failed.update(k for k in self._links if name in k)
-            for k in [k for k in self._refreshed if name in k]:
-                del self._refreshed[k]
-            tol_d, tol_a = self.config.initial_pose_tolerance
-            for k, e in list(self._links.items()):
-                P = relative_pose(priors, e.parent, e.child)
-                if name not in k or P is None:
-                    continue
-                d, a = pose_distance(e.T, P)
-                if d > tol_d or a > tol_a:
-                    del self._links[k]
-                    events.append('link %s -> %s dropped: it contradicts the new prior of %s by %.2f m, '
-                                  '%.1f deg' % (e.parent, e.child, name, d, math.degrees(a)))
+            events = self._ledger.reprior(name, priors, self.config.initial_pose_tolerance)
             for n in [n for n, pl in self._placements.items() if pl.via == placement.PRIOR]:
                 del self._placements[n]
             self.state_version += 1
@@ -431,8 +265,8 @@ class MapMerger:
                 return None
             given = self.priors()
             with self._lock:
-                grids = {r: self._maps[r].raw for r, p in self._spawn_poses.items()
-                         if given.get(r) == p and r in self._maps}
+                grids = {r: self._team.maps[r].raw for r, p in self._spawn_poses.items()
+                         if given.get(r) == p and r in self._team.maps}
             priors = {r: self._spawn_poses[r] for r in grids}
             seen = tuple(sorted((r, id(g)) for r, g in grids.items()))
             if seen == self._spawn_checked:
@@ -454,25 +288,17 @@ class MapMerger:
     def reset(self) -> None:
         """Forget every transform (maps are kept)."""
         with self._lock:
-            self._links.clear()
-            self._tried.clear()
-            self._aligned.clear()
-            self._refreshed.clear()
-            self._pinned.clear()
-            self._track_failed.clear()
-            self._results.clear()
+            self._ledger.reset()
             self._placements.clear()
-            self._patches.clear()
-            self._fields.clear()
-            self._fields_key = None
-            self._drift_covs.clear()
+            self._compositor.forget()
+            self._placer.forget_fields()
 
     def _snapshot(self) -> Tuple[str, Dict[str, RobotMap]]:
         """(reference, maps at the reference's resolution); maps empty before the reference
         has a map (nothing can be placed without it)."""
         with self._lock:
-            ref = self._reference_locked()
-            maps = dict(self._maps)
+            ref = self._team.reference
+            maps = dict(self._team.maps)
         if ref not in maps:
             return ref, {}
         res = maps[ref].raw.resolution
@@ -499,7 +325,7 @@ class MapMerger:
         done = dict(zip(plan.todo, results))
         for key in schedule.pairs_of(maps, ref):
             if done.get(key) is not None:
-                self._keep(maps[key[0]], maps[key[1]], done[key], plan)
+                self._keep(maps[key[0]], maps[key[1]], done[key], PLANNED)
         self._planned(maps, plan)
         # (4) place every robot through its most reliable links; (6) that is its TF
         events += self._place(maps, ref)
@@ -507,7 +333,7 @@ class MapMerger:
         if self._corroborate(maps):
             events += self._place(maps, ref)
         # (5) past rigid: every placed map bent onto the walls of the others, for the merged map
-        self._bend(maps, ref)
+        self._placer.bend(maps, ref, self.placements())
         return events
 
     def refresh(self, budget: float) -> List[str]:
@@ -527,9 +353,9 @@ class MapMerger:
         deadline = time.monotonic() + budget
         facts = {n: self._map_facts(m) for n, m in maps.items()}
         with self._lock:
-            kept = {k: e for k, e in self._links.items()
-                    if k[0] in maps and k[1] in maps and k not in self._track_failed}
-            pinned = dict(self._pinned)
+            kept = {k: e for k, e in self._ledger.links.items()
+                    if k[0] in maps and k[1] in maps and k not in self._ledger.track_failed}
+            pinned = dict(self._ledger.pinned)
             version = self.state_version
         grown = sorted((-schedule.growth(facts, k, pinned.get(k)), k) for k in kept)
         stale = [k for g, k in grown if -g >= REFRESH_GROWTH]
@@ -541,36 +367,26 @@ class MapMerger:
                 return []     # a prior changed meanwhile: these were gated by the old one
             for (a, b), r in zip(todo, results):
                 if r is not None:
-                    self._keep(maps[a], maps[b], r, refresh=True)
+                    self._keep(maps[a], maps[b], r, REFRESHED)
         with self._lock:
             moved = self.state_version != version
         # robots whose map changed too little for a cycle to refine them (REFINE_GROWTH), a
         # batch of them
-        pending = self._refinement_pending(maps, ref)[:batch] if time.monotonic() < deadline else []
+        with self._lock:
+            placed = set(self._placements)
+        pending = self._placer.refinement_pending(maps, ref, placed)[:batch] if time.monotonic() < deadline else []
         if not moved and not pending:
             return []
         events = self._place(maps, ref, also=set(pending))
-        self._bend(maps, ref)
+        self._placer.bend(maps, ref, self.placements())
         return events
-
-    def _refinement_pending(self, maps: Dict[str, RobotMap], ref: str) -> List[str]:
-        """The placed robots whose map changed since the joint refinement last took them
-        (:meth:`_joint`), those whose known cells grew most since first."""
-        with self._lock:
-            last = self._joint_key
-            placed = set(self._placements)
-        if not self.config.joint_placement or last is None or last[0] != ref:
-            return []
-        grown = [(-self._map_facts(maps[n]).known / float(max(1, r.known)), n) for n, r in last[1].items()
-                 if n in placed and n in maps and maps[n].key != r.map_key]
-        return [n for _, n in sorted(grown)]
 
     def _corroborate(self, maps: Dict[str, RobotMap]) -> List[str]:
         """Keep the pair results refused only for too little evidence that corroborate each
         other (:mod:`corroborate`); returns their events (none: nothing changed)."""
         with self._lock:
-            results = {k: r for k, r in self._results.items()
-                       if k not in self._links and k[0] in maps and k[1] in maps}
+            results = {k: r for k, r in self._ledger.results.items()
+                       if k not in self._ledger.links and k[0] in maps and k[1] in maps}
             placed = {n: p.T for n, p in self._placements.items()}
         poses = corroborate.poses_of(results, lambda k, r: image_to_pose(
             r.A, maps[k[0]].grid.resolution, maps[k[0]].grid.origin, maps[k[1]].grid.resolution,
@@ -578,7 +394,7 @@ class MapMerger:
         keys, events = corroborate.corroborated(poses, placed)
         for a, b in sorted(keys):
             r = dataclasses.replace(results[(a, b)], accepted=True, reason='')
-            self._keep(maps[a], maps[b], r)
+            self._keep(maps[a], maps[b], r, CORROBORATED)
         return events if keys else []
 
     def compose(self) -> Optional[Grid]:
@@ -587,25 +403,10 @@ class MapMerger:
         ref, maps = self._snapshot()
         with self._lock:
             placements = dict(self._placements)
-            fields = dict(self._fields)
+            fields = dict(self._placer.fields)
         if not maps:
             return None
-        lattice = lattice_for(maps[ref].grid)
-        patches = []
-        for name, pl in sorted(placements.items()):
-            m = maps.get(name)
-            if m is not None:
-                # (a field is used only with the placement and map it was fitted to)
-                version, f = fields.get(name, (None, None))
-                if f is not None and not (version == m.version and np.array_equal(f.T, pl.T)):
-                    f = None
-                patches.append(self._patch(m, pl.T, lattice, f))
-        key = tuple(id(p) for p in patches)
-        if self._merged is not None and self._merged[0] == key:
-            return self._merged[1]   # nothing moved or changed: the same merged grid
-        grid = composite(patches, lattice, self.config.merged_map_frame, self.config.max_cells)
-        self._merged = (key, grid)
-        return grid
+        return self._compositor.compose(maps, placements, fields, ref)
 
     def placements(self) -> Dict[str, Placement]:
         """Placement of every merged robot (the reference included, at identity)."""
@@ -616,49 +417,32 @@ class MapMerger:
         """The verified links kept, per pair (parent, child): what the placements are made of
         (a :class:`Link` maps metres of the child's frame to the parent's)."""
         with self._lock:
-            return dict(self._links)
+            return dict(self._ledger.links)
 
     def pair_results(self) -> Dict[Tuple[str, str], PairResult]:
         """The last result of every pair aligned, per pair (parent, child): accepted or not,
         with its scores and the reason it was refused (what the status shows per robot)."""
         with self._lock:
-            return dict(self._results)
+            return dict(self._ledger.results)
 
     def frames(self) -> Dict[str, str]:
         """Map frame id of every robot (from its grid's header)."""
         with self._lock:
-            return {n: (m.raw.frame_id or n + '/map') for n, m in self._maps.items()}
+            return self._team.frames()
 
     def status(self) -> Dict[str, RobotStatus]:
         """Per robot: merged or not, placement, last pair attempt, last input error."""
         with self._lock:
-            ref = self._reference_locked()
-            out = {}
-            for n in sorted(set(self._maps) | set(self._errors)):
-                last, other = None, ''
-                for (a, b), e in self._results.items():
-                    if n in (a, b) and (last is None or e.stamp > last.stamp):
-                        last, other = e, (b if a == n else a)
-                pl = self._placements.get(n)
-                links = tuple(sorted({b if a == n else a for (a, b) in self._links if n in (a, b)}))
-                covs = tuple((a, b, e.cov) for (a, b), e in sorted(self._links.items()) if n in (a, b))
-                bends = tuple(sorted(((b if a == n else a, e.bend) for (a, b), e in self._links.items()
-                                      if n in (a, b) and e.bend >= bend.REPORT_BEND), key=lambda x: -x[1]))
-                turns = _turns_apart(n, self._links)
-                m = self._maps.get(n)
-                field = self._fields.get(n)
-                out[n] = RobotStatus(pl is not None, n == ref, pl, last, other, self._errors.get(n, ''), links,
-                                     covs, m.received if m is not None else None, bends,
-                                     field[1].largest() if field is not None else 0.0, turns)
-            return out
+            return robot_statuses(self._team.maps, self._team.errors, self._ledger.results, self._ledger.links,
+                                  self._placements, self._placer.fields, self._team.reference)
 
     def export_state(self) -> Dict:
         """Verified links and placements as plain data: what the state file holds
         (:mod:`state`)."""
         with self._lock:
-            edges = [link_dict(e) for e in self._links.values()]
+            edges = [link_dict(e) for e in self._ledger.links.values()]
             placements = {n: placement_dict(p) for n, p in self._placements.items()}
-            return {'reference': self._reference_locked(), 'edges': edges, 'placements': placements}
+            return {'reference': self._team.reference, 'edges': edges, 'placements': placements}
 
     def restore_state(self, state: Dict) -> int:
         """Take links saved by :meth:`export_state`; each is verified again on the grids before
@@ -673,7 +457,7 @@ class MapMerger:
                 except (KeyError, TypeError, ValueError):
                     continue
                 if all(math.isfinite(v) for v in e.T.ravel()):
-                    self._restored[(e.parent, e.child)] = e
+                    self._ledger.restored[(e.parent, e.child)] = e
                     n += 1
         return n
 
@@ -683,24 +467,19 @@ class MapMerger:
         c = self.config
         events = []
         with self._lock:
-            pending = [(k, e) for k, e in self._restored.items() if k[0] in maps and k[1] in maps]
+            pending = self._ledger.restorable(set(maps))
         for key, e in pending:
             ag, ov = self._verified(maps[key[0]], maps[key[1]], e.T)
             ok = ov >= c.min_overlap_cells and ag >= c.min_agreement
             with self._lock:
-                self._restored.pop(key, None)
-                if ok and key not in self._links:
-                    e.agreement = ag
-                    self._links[key] = e
+                if self._ledger.verified_restored(key, e, ok, ag):
                     self.state_version += 1
             events.append('restored link %s -> %s %s (agreement %.3f, overlap %d cells)'
                           % (key[0], key[1], 'verified' if ok else 'REJECTED', ag, ov))
         return events
 
     def _from_former_life_locked(self, m: RobotMap) -> bool:
-        """True when ``m`` (from a cycle's snapshot) is a map the robot had before it was
-        forgotten (its map restarted, or it was removed) while the cycle ran."""
-        return self._lives.get(m.name, 0) != m.life
+        return self._team.from_former_life(m)
 
     def _default_thresholds(self) -> bool:
         c = self.config
@@ -713,20 +492,7 @@ class MapMerger:
 
     def _map_facts(self, m: RobotMap) -> schedule.MapFacts:
         """What the schedule needs of a map (:class:`schedule.MapFacts`), once per version."""
-        cached = self._facts.get(m.name)
-        if cached is None or cached[0] != m.key:
-            c = self.config
-            g = m.grid
-            box = g.known_box(c.free_thresh, c.occupied_thresh)
-            corners = None
-            if box is not None:
-                r0, r1, c0, c1 = box
-                W = cell_to_metric(g.resolution, g.origin)
-                cells = np.array([[c0, r0], [c1, r0], [c0, r1], [c1, r1]], np.float64)
-                corners = cells @ W[:2, :2].T + W[:2, 2]
-            known = int(np.count_nonzero(g.levels(c.free_thresh, c.occupied_thresh)))
-            cached = self._facts[m.name] = (m.key, schedule.MapFacts(m.version, known, corners))
-        return cached[1]
+        return schedule.facts_of(m, self.config)
 
     def _plan(self, maps: Dict[str, RobotMap], ref: str) -> schedule.Plan:
         """The cycle's pair work (:func:`schedule.plan`): pairs (parent, child) whose maps changed
@@ -734,64 +500,49 @@ class MapMerger:
         reference can chain through another)."""
         facts = {n: self._map_facts(m) for n, m in maps.items()}
         with self._lock:
-            self._cycle += 1
-            # (against the last cycle that completed: a cycle that failed leaves its work to the next)
-            changed = {n for n, m in maps.items() if self._seen_versions.get(n) != m.version}
-            due = {n for n in maps if self._since_slow.get(n, 0) + (n in changed) >= schedule.SLOW_EVERY}
             placed = {n: p.T for n, p in self._placements.items() if n in maps}
             via = {n: p.via for n, p in self._placements.items()}
-            return schedule.plan(facts, ref, dict(self._links), dict(self._tried), dict(self._aligned),
-                                 set(self._track_failed), placed, via, due, maps[ref].grid.resolution,
-                                 dict(self._refreshed), changed)
+            return self._ledger.plan(facts, ref, _versions(maps), placed, via, maps[ref].grid.resolution)
 
     def _planned(self, maps: Dict[str, RobotMap], plan: schedule.Plan) -> None:
         """A cycle's plan carried out: the maps it saw are the ones the next compares against,
         and the robots whose turn on the slow schedule it was start counting again."""
         with self._lock:
-            for n, m in maps.items():
-                if self._seen_versions.get(n) != m.version:
-                    self._since_slow[n] = 0 if n in plan.due else self._since_slow.get(n, 0) + 1
-                elif n in plan.due:
-                    self._since_slow[n] = 0
-            self._seen_versions.update({n: m.version for n, m in maps.items()})
+            self._ledger.planned(_versions(maps), plan.due)
 
     def _tracks(self, maps: Dict[str, RobotMap], plan: schedule.Plan) -> Dict[Tuple[str, str], Tuple[np.ndarray, bool]]:
         """The kept links to track, as transforms between the pairs' current grids' cells, and
         whether to compute their covariance (a link without one: its walls said too little)."""
         with self._lock:
-            uncertain = {k for k, e in self._links.items() if e.cov is None}
+            uncertain = self._ledger.uncertain()
         return _as_tracks(maps, plan.track, uncertain)
 
-    def _keep(self, pa: RobotMap, ch: RobotMap, r: PairResult, plan: Optional[schedule.Plan] = None,
-              refresh: bool = False) -> None:
+    def _keep(self, pa: RobotMap, ch: RobotMap, r: PairResult, source: str) -> None:
         """(4) keep the pair's result if it is verified and replaces the kept link
         (:func:`links.replacement`: the paper's more-reliable rule, refined); a tracked link
-        (``r.tracked``) takes its refined pose, or is aligned from features next."""
+        (``r.tracked``) takes its refined pose, or is aligned from features next. ``source``:
+        what the result comes of (:data:`PLANNED`, :data:`REFRESHED` or :data:`CORROBORATED`)."""
         key = (pa.name, ch.name)
         r.stamp = time.time()
         with self._lock:
             if self._from_former_life_locked(pa) or self._from_former_life_locked(ch):
                 return               # a map restarted (or robot removed) since the cycle began
-            self._tried[key] = (pa.version, ch.version)
-            old = self._links.get(key)
             known = (self._map_facts(pa).known, self._map_facts(ch).known)
-            if plan is not None or refresh:
-                self._refreshed[key] = known
-            if refresh:
-                self._pinned[key] = known
+            old = self._ledger.worked(key, (pa.version, ch.version), known, source != CORROBORATED,
+                                      source == REFRESHED)
             if r.tracked:
-                self._track(key, r, old, image_to_pose(r.A, pa.grid.resolution, pa.grid.origin,
-                                                       ch.grid.resolution, ch.grid.origin))
+                T = image_to_pose(r.A, pa.grid.resolution, pa.grid.origin, ch.grid.resolution, ch.grid.origin)
+                if self._ledger.track(key, r, old, T):
+                    self.state_version += 1
                 return
-            self._results[key] = r
-            self._track_failed.discard(key)
+            self._ledger.attempted(key, r)
             placed = {n: p.T for n, p in self._placements.items()}
-        if plan is not None:
+        if source == PLANNED:
             facts = {n: self._map_facts(m) for n, m in ((pa.name, pa), (ch.name, ch))}
             expected = schedule.expected_overlap(facts, placed, key, pa.grid.resolution)
             with self._lock:
-                self._aligned[key] = schedule.Aligned(self._cycle, expected,
-                                                      (facts[pa.name].known, facts[ch.name].known))
+                self._ledger.aligned[key] = schedule.Aligned(self._ledger.cycle, expected,
+                                                             (facts[pa.name].known, facts[ch.name].known))
         if not r.accepted:
             return
         T = image_to_pose(r.A, pa.grid.resolution, pa.grid.origin, ch.grid.resolution, ch.grid.origin)
@@ -800,45 +551,11 @@ class MapMerger:
         if kept is None:
             return
         inlier_ratio, inliers = kept
+        link = Link(pa.name, ch.name, T, inlier_ratio, r.agreement, inliers, r.matches, time.time(), r.overlap,
+                    r.cov, r.bend, r.centre, r.parent_turn, r.child_turn)
         with self._lock:
-            if self._links.get(key) is not old:
-                return               # forgotten (reset, map restart) meanwhile
-            self._links[key] = Link(pa.name, ch.name, T, inlier_ratio, r.agreement, inliers, r.matches,
-                                    time.time(), r.overlap, r.cov, r.bend, r.centre, r.parent_turn, r.child_turn)
-            self._pinned[key] = known
-            self.state_version += 1
-
-    def _track(self, key: Tuple[str, str], r: PairResult, old: Optional[Link], T: np.ndarray) -> None:
-        """(under the lock) A tracked link's result: the link refined on its new maps (its pose,
-        agreement and overlap; its inliers, covariance and where it was fitted stay those of its
-        alignment from features), or, when it failed, aligned from features next cycle."""
-        if old is None:
-            return                   # forgotten meanwhile
-        if not r.accepted:
-            self._track_failed.add(key)
-            self._results[key] = dataclasses.replace(
-                r, matches=old.matches, inliers=old.inliers, inlier_ratio=old.inlier_ratio,
-                reason='tracking the kept link failed (%s): aligned again from features' % r.reason)
-            return
-        self._track_failed.discard(key)
-        self._results[key] = dataclasses.replace(r, matches=old.matches, inliers=old.inliers,
-                                                 inlier_ratio=old.inlier_ratio)
-        # pinned on its maps now: a link whose walls said too little when aligned, or one refreshed
-        # on more overlap (MapMerger.refresh): the pose and its covariance, on the maps as they are
-        if r.cov is not None and (old.cov is None or r.overlap > old.overlap):
-            self._links[key] = dataclasses.replace(old, T=T, agreement=r.agreement, overlap=r.overlap,
-                                                   stamp=time.time(), cov=r.cov, bend=r.bend, centre=r.centre,
-                                                   parent_turn=r.parent_turn, child_turn=r.child_turn)
-            self.state_version += 1
-            return
-        if r.overlap <= old.overlap:
-            return                   # as links.replacement: the pose refined on more overlap only
-        d, a = pose_distance(T, old.T)
-        if d <= TRACK_MOVE[0] and a <= TRACK_MOVE[1]:
-            return                   # the link stands: placing the team again would move nothing
-        self._links[key] = dataclasses.replace(old, T=T, agreement=r.agreement, overlap=r.overlap,
-                                               stamp=time.time())
-        self.state_version += 1
+            if self._ledger.keep(key, old, link, known):   # (not when forgotten meanwhile: a reset, a restart)
+                self.state_version += 1
 
     def align_robots(self, pa: RobotMap, ch: RobotMap, seed: int = 0) -> PairResult:
         """Steps (2)-(4) for two robots' maps, here in this process (:func:`pair.align_pair` of
@@ -849,41 +566,14 @@ class MapMerger:
         """Place every robot from the verified links (see :mod:`placement`) and keep, per
         robot, the best placement seen; returns the events (merged, improved). ``also``:
         robots the joint refinement takes if their map changed at all (:meth:`_joint`)."""
-        c = self.config
         with self._lock:
-            edges = dict(self._links)
+            edges = dict(self._ledger.links)
             old = dict(self._placements)
-        # the chain whose weakest link is most reliable, from the reference
-        best = placement.widest_paths(edges, maps, ref)
-        # every verified link at once, where they form cycles (kept if every link agrees)
-        graph_key = None
-        if c.pose_graph:
-            graph, key = placement.graph_links(edges, best)
-            with self._lock:
-                same = key == self._graph_key
-            if same:
-                graph_key = key              # nothing changed: the kept placements stand
-            else:
-                poses = placement.graph_poses(best, graph, ref, placement.link_covs(edges, graph))
-                if poses is not None:
-                    graph_key = key
-                    for n in best:
-                        best[n].T = poses[n]
-        with self._lock:
-            regraphed = graph_key is not None and graph_key != self._graph_key
-            self._graph_key = graph_key
-        # robots with no chain at their initial pose, when trusted
-        placement.add_priors(c, best, maps, ref, self.priors())
-        # the kept placement stays unless the new one is better
-        new, events = placement.hysteresis(c, best, old, edges, ref, regraphed)
-        # every placement refined against every placed map it overlaps, when one was adopted anew
-        new = self._joint(maps, new, old, ref, also or set())
-        # how well each is pinned: its links' covariances, along its chain or by the graph
-        placement.pin(c, new, edges, ref, graph_key is not None, self._drift_covs)
+        new, events = self._placer.place(maps, ref, edges, old, self.priors, self._ledger.drift_covs, also or set())
         with self._lock:
             if ref in maps and self._from_former_life_locked(maps[ref]):
                 return []            # the reference restarted meanwhile: every placement is void
-            if ref != self._reference:
+            if ref != self._team.reference:
                 return []            # another robot became the reference meanwhile: as void
             # robots forgotten since the cycle began stay unplaced until estimated again
             gone = {n for n in new if n in maps and self._from_former_life_locked(maps[n])}
@@ -895,112 +585,10 @@ class MapMerger:
             self._settle_reference_locked()   # fixed once another robot is merged with it
         return events
 
-    def _joint(self, maps: Dict[str, RobotMap], new: Dict[str, Placement], old: Dict[str, Placement],
-               ref: str, also: Set[str]) -> Dict[str, Placement]:
-        """The placements ``new`` (after hysteresis) refined by :mod:`joint` against each other,
-        the reference and robots at their prior fixed; a robot it moves gets a new
-        :class:`Placement` (its ``graph_T`` the links' pose). Refines only the robots whose
-        inputs changed since they were last refined: their map, or their anchor (the links'
-        pose) by more than SAME_POSE (the reference's map: its neighbours); the others keep the
-        pose they were refined to, so that a team's cost per round of map updates grows with
-        the team, not with its square. With ``refresh_links``, a map that changed counts only
-        once its known cells grew by REFINE_GROWTH since its last refinement, unless it is one
-        of ``also`` (the spare time's placement, :meth:`refresh`, takes the others). A cycle in
-        which nothing changed cannot move a robot, and a move smaller than SAME_POSE keeps the
-        robot's placement as it was (a map that grew a little does not move its TF)."""
-        c = self.config
-        if not c.joint_placement:
-            return new
-        linked = [n for n, p in sorted(new.items()) if n in maps and (n == ref or p.via != placement.PRIOR)]
-        robots = {}
-        for n in linked:
-            r = self._joint_robot(maps[n])
-            if r is not None:
-                robots[n] = r
-        if ref not in robots:
-            return new
-        anchors = {n: (new[n].graph_T if new[n].graph_T is not None else new[n].T) for n in robots}
-        known = {n: self._map_facts(maps[n]).known for n in robots}
-        with self._lock:
-            last = self._joint_key
-        moving = None                  # every robot, from its anchor
-        current = {n: new[n].T for n in robots}
-        if last is not None and last[0] == ref and set(last[1]) <= set(robots):
-            # the robots whose map, or whose anchor beyond SAME_POSE, changed since they were
-            # refined (a robot new among them too); the reference's neighbours for the reference.
-            # The others keep the pose they were refined to (a placement adopted anew with an
-            # anchor that moved less, as the pose graph is solved again, too)
-            moving = {n for n in robots if n not in last[1] or not _same_pose(anchors[n], last[1][n].anchor)
-                      or (last[1][n].map_key != maps[n].key
-                          and (n in also or not c.refresh_links or known[n] >= REFINE_GROWTH * last[1][n].known))}
-            current.update({n: last[1][n].pose for n in robots if n not in moving})
-            if ref in moving:
-                moving.update(joint.neighbours(robots, current, ref))
-            if not moving:
-                moving = set()
-        poses = joint.refine_placements(robots, anchors, ref, lattice_for(maps[ref].grid), c.agreement_tolerance,
-                                        current, moving, self._workers.runner(maps)) if moving != set() else current
-        with self._lock:
-            kept = {} if moving is None or last is None else dict(last[1])
-            kept.update({n: _Refined(maps[n].key, anchors[n], poses[n], known[n])
-                         for n in robots if moving is None or n in moving})
-            self._joint_key = (ref, {n: kept[n] for n in robots if n in kept})
-        out = dict(new)
-        for n, T in poses.items():
-            if not _same_pose(T, new[n].T):
-                moved = not np.array_equal(T, anchors[n])
-                out[n] = dataclasses.replace(new[n], T=T, graph_T=anchors[n] if moved else None)
-        return out
 
-    def _joint_robot(self, m: RobotMap) -> Optional[joint.Robot]:
-        """What the joint refinement needs of a map (:class:`joint.Robot`), once per version."""
-        cached = self._joint_robots.get(m.name)
-        if cached is None or cached[0] != m.key:
-            c = self.config
-            g = m.grid
-            cached = self._joint_robots[m.name] = (m.key, joint.Robot.of(
-                g, g.levels(c.free_thresh, c.occupied_thresh), g.known_values(c.free_thresh, c.occupied_thresh)))
-        return cached[1]
 
-    def _bend(self, maps: Dict[str, RobotMap], ref: str) -> None:
-        """Fit the correction field of every placed map (:mod:`deform`) when ``bend_maps`` is
-        on and a map or a placement changed since they were fitted; a map whose field is not
-        fitted (it pairs with no other) is composited rigidly."""
-        c = self.config
-        if not c.bend_maps:
-            return
-        with self._lock:
-            placed = {n: p.T for n, p in self._placements.items() if n in maps}
-        key = (ref, tuple((n, maps[n].key, T.tobytes()) for n, T in sorted(placed.items())))
-        with self._lock:
-            if key == self._fields_key:
-                return
-        walls = {}
-        for n in placed:
-            g = maps[n].grid
-            walls[n] = deform.wall_points(g.levels(c.free_thresh, c.occupied_thresh), g.resolution, g.origin)
-        fields = deform.fit_fields(walls, placed, ref, c.bend_node_spacing, c.map_drift,
-                                   math.radians(c.map_drift_yaw))
-        with self._lock:
-            self._fields = {n: (maps[n].version, f) for n, f in fields.items()}
-            self._fields_key = key
-
-    def _patch(self, m: RobotMap, T: np.ndarray, lattice: Lattice,
-               field: Optional[deform.Field] = None) -> Optional[Patch]:
-        key = (m.version, T.tobytes(), lattice.key(), id(field) if field is not None else None)
-        cached = self._patches.get(m.name)
-        if cached is not None and cached[0] == key:
-            return cached[1]
-        c = self.config
-        kv = m.grid.known_values(c.free_thresh, c.occupied_thresh)
-        if kv is None:
-            p = None
-        elif field is not None:
-            p = deform.warp_field_patch(kv[1], kv[0], m.grid.resolution, m.grid.origin, field, lattice, c.max_cells)
-        else:
-            p = warp_patch(kv[1], kv[0], m.grid.resolution, m.grid.origin, T, lattice, c.max_cells)
-        self._patches[m.name] = (key, p)
-        return p
+def _versions(maps: Dict[str, RobotMap]) -> Dict[str, int]:
+    return {n: m.version for n, m in maps.items()}
 
 
 def _as_tracks(maps: Dict[str, RobotMap], poses: Dict[Tuple[str, str], np.ndarray],
@@ -1013,29 +601,3 @@ def _as_tracks(maps: Dict[str, RobotMap], poses: Dict[Tuple[str, str], np.ndarra
         pa, ch = maps[a].grid, maps[b].grid
         out[(a, b)] = (pose_to_image(T, pa.resolution, pa.origin, ch.resolution, ch.origin), (a, b) in pin)
     return out
-
-
-class _Refined(NamedTuple):
-    """A robot as the joint refinement last took it (:meth:`MapMerger._joint`)."""
-
-    map_key: tuple          # its map's RobotMap.key
-    anchor: np.ndarray      # 3x3, the links' pose it was refined from
-    pose: np.ndarray        # 3x3, the pose it was refined to
-    known: int              # its map's known cells
-
-
-def _same_pose(A: np.ndarray, B: np.ndarray) -> bool:
-    """Two poses within :data:`joint.SAME_POSE` of each other."""
-    d, a = pose_distance(A, B)
-    return d <= joint.SAME_POSE[0] and a <= joint.SAME_POSE[1]
-
-
-def _restarted(old: Grid, new: Grid) -> bool:
-    """gmapping only ever grows its grid (same or larger, origin moving outwards) and keeps
-    what it knew, so a grid that shrank or lost most of its known cells is a new map."""
-    if new.width < old.width or new.height < old.height:
-        return True
-    known_old = int(np.count_nonzero(old.data >= 0))
-    known_new = int(np.count_nonzero(new.data >= 0))
-    return known_old > 1000 and known_new < 0.5 * known_old
-

@@ -19,7 +19,18 @@ from .config import MergeConfig
 from .features import FeatureExtractor, Features, coarsening
 from .grid import known_bbox
 from .refine import WALL_FIELD_MARGIN, WallField, occupied_points, refine
-from .transforms import apply, cell_to_metric, image_to_pose, inverse, pose_distance, pose_to_image, se2, turn_between
+from .transforms import (
+    apply,
+    cell_to_metric,
+    image_to_pose,
+    inverse,
+    pose_distance,
+    pose_to_image,
+    se2,
+    turn_between,
+    within,
+    within_tolerance,
+)
 
 
 @dataclass
@@ -203,9 +214,9 @@ def contradicts_prior(config: MergeConfig, pa: PairInput, ch: PairInput, A: np.n
     if P is None:
         return ''
     T = image_to_pose(_grid_cells(A, pa, ch), pa.resolution, pa.origin, ch.resolution, ch.origin)
-    d, a = pose_distance(T, P)
-    tol_d, tol_a = config.initial_pose_tolerance
-    if d > tol_d or a > tol_a:
+    if not within(T, P, config.initial_pose_tolerance):
+        d, a = pose_distance(T, P)
+        tol_d, tol_a = config.initial_pose_tolerance
         return ('contradicts initial poses: %.2f m, %.1f deg from them (tolerance %.2f m, %.1f deg)'
                 % (d, math.degrees(a), tol_d, math.degrees(tol_a)))
     return ''
@@ -499,7 +510,7 @@ def _apart(A: np.ndarray, B: np.ndarray, centre: np.ndarray, resolution: float) 
 
 def _same_place(A: np.ndarray, B: np.ndarray, centre: np.ndarray, resolution: float) -> bool:
     d, da = _apart(A, B, centre, resolution)
-    return d <= AMBIGUITY_APART[0] and da <= AMBIGUITY_APART[1]
+    return within_tolerance(d, da, AMBIGUITY_APART)
 
 
 def _check_ambiguity(config: MergeConfig, pa: PairInput, best: PairResult, tried,

@@ -28,7 +28,7 @@ from . import drift, posegraph
 from .config import MergeConfig
 from .covariance import position_sigma
 from .links import SAME_LINK, Link
-from .transforms import inverse, pose_distance, se2, xyyaw
+from .transforms import inverse, se2, within, xyyaw
 
 # a pose graph whose result disagrees with one of its links by more than this (metres,
 # radians) is not used: the chain of most reliable links places the robots instead
@@ -273,5 +273,5 @@ def chain_holds(pl: Placement, edges: Links) -> bool:
         if e is None:
             return False
         T = T @ e.towards(p)
-    d, a = pose_distance(T, pl.chain_T if pl.chain_T is not None else pl.T)
-    return d <= GRAPH_GATE[0] + SAME_LINK[0] and a <= GRAPH_GATE[1] + SAME_LINK[1]
+    return within(T, pl.chain_T if pl.chain_T is not None else pl.T,
+                  (GRAPH_GATE[0] + SAME_LINK[0], GRAPH_GATE[1] + SAME_LINK[1]))

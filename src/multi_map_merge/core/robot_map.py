@@ -2,7 +2,8 @@
 merger's working resolution. Below both the merger and its workers, which both handle it."""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Any, Callable, Dict, Tuple
 
 from .grid import Grid, rescale
 
@@ -18,11 +19,29 @@ class RobotMap:
     received: float     # seconds (time.time()) when it arrived
     grid: Grid = None   # type: ignore[assignment]  # working-resolution grid, set by set_working_resolution()
     life: int = 0       # how often the robot was forgotten (map restarts) before this map
+    # what was derived from the working grid, by what it is: (the key it was derived at, it)
+    _memo: Dict[str, Tuple[tuple, Any]] = field(default_factory=dict, repr=False, compare=False)
 
     @property
     def key(self) -> tuple:
         """What anything derived from the working grid is cached under: (version, resolution)."""
         return self.version, self.grid.resolution
+
+    def memo(self, what: str, make: Callable[[], Any]) -> Any:
+        """``what`` derived from the working grid by ``make()``, once per :attr:`key`: the one
+        cache of everything the merger and its workers derive from a map version."""
+        cached = self._memo.get(what)
+        if cached is None or cached[0] != self.key:
+            cached = self._memo[what] = (self.key, make())
+        return cached[1]
+
+    def memo_ready(self, what: str) -> bool:
+        """Whether ``what`` is derived for the current :attr:`key` already (:meth:`memo`)."""
+        return self._memo.get(what, (None,))[0] == self.key
+
+    def remember(self, what: str, value: Any) -> None:
+        """Keep ``value``, derived elsewhere (a worker process), as ``what`` of this version."""
+        self._memo[what] = (self.key, value)
 
     def rescaled(self, resolution: float) -> Grid:
         """The map at ``resolution`` (metres per cell), without keeping it: the working grid

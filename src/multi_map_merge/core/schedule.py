@@ -35,6 +35,11 @@ from typing import Dict, Iterable, List, Mapping, Optional, Set, Tuple
 
 import numpy as np
 
+from .config import MergeConfig
+from .grid import Grid
+from .robot_map import RobotMap
+from .transforms import cell_to_metric
+
 Pair = Tuple[str, str]
 
 # links per robot tracked when its map changes: those whose maps grew most (and its placement's own)
@@ -244,3 +249,21 @@ def expected_overlap(facts: Mapping[str, MapFacts], placements: Mapping[str, np.
     ba = placed_box(facts[a].corners, placements[a])
     bb = placed_box(facts[b].corners, placements[b])
     return box_overlap(ba, bb, resolution) if ba and bb else 0.0
+
+
+def facts_of(m: RobotMap, config: MergeConfig) -> MapFacts:
+    """What the schedule needs of a map (:class:`MapFacts`), once per map version."""
+    return m.memo('facts', lambda: _facts(m.grid, m.version, config))
+
+
+def _facts(g: Grid, version: int, c: MergeConfig) -> MapFacts:
+    """What the schedule needs of a grid of map ``version`` (:class:`schedule.MapFacts`)."""
+    box = g.known_box(c.free_thresh, c.occupied_thresh)
+    corners = None
+    if box is not None:
+        r0, r1, c0, c1 = box
+        W = cell_to_metric(g.resolution, g.origin)
+        cells = np.array([[c0, r0], [c1, r0], [c0, r1], [c1, r1]], np.float64)
+        corners = cells @ W[:2, :2].T + W[:2, 2]
+    known = int(np.count_nonzero(g.levels(c.free_thresh, c.occupied_thresh)))
+    return MapFacts(version, known, corners)

@@ -26,7 +26,7 @@ import numpy as np
 
 from .config import MergeConfig
 from .grid import FREE, UNKNOWN, Grid
-from .transforms import inverse, pose_distance, se2
+from .transforms import inverse, pose_distance, se2, within_tolerance
 from .verify import pose_on_grids
 
 #: agreement at identity below which two overlapping maps are not in one frame. Measured on the
@@ -102,7 +102,6 @@ def spawn_poses_in_one_frame(config: MergeConfig, grids: Dict[str, Grid],
     names = sorted(priors)
     if len(names) < 2 or any(n not in grids for n in names):
         return None
-    tol_d, tol_a = config.initial_pose_tolerance
     pairs = []
     for i, a in enumerate(names):
         for b in names[i + 1:]:
@@ -113,7 +112,7 @@ def spawn_poses_in_one_frame(config: MergeConfig, grids: Dict[str, Grid],
                 continue   # they do not overlap at identity: nothing to say
             if agr < NOT_ONE_FRAME:
                 return None   # overlapping at identity and disagreeing: not one frame
-            if agr < config.min_agreement or (d <= tol_d and ang <= tol_a):
+            if agr < config.min_agreement or within_tolerance(d, ang, config.initial_pose_tolerance):
                 continue   # no evidence either way; or the priors say identity too
             agr_p, ovl_p = pose_on_grids(config, grids[a], grids[b], P)
             if ovl_p >= config.min_overlap_cells and agr_p >= config.min_agreement:

@@ -135,6 +135,19 @@ def pose_distance(T1: np.ndarray, T2: np.ndarray) -> Tuple[float, float]:
     return math.hypot(x1 - x2, y1 - y2), abs(float(wrap_angle(a1 - a2)))
 
 
+def within(T1: np.ndarray, T2: np.ndarray, tolerance: Tuple[float, float]) -> bool:
+    """Whether two poses are within ``tolerance`` (metres, radians) of each other: their
+    translations at most ``tolerance[0]`` apart and their yaws at most ``tolerance[1]``."""
+    d, a = pose_distance(T1, T2)
+    return within_tolerance(d, a, tolerance)
+
+
+def within_tolerance(distance: float, angle: float, tolerance: Tuple[float, float]) -> bool:
+    """Whether a ``distance`` (metres) and an ``angle`` (radians, its magnitude) between two
+    poses are within ``tolerance`` (metres, radians): :func:`within` once they are measured."""
+    return distance <= tolerance[0] and angle <= tolerance[1]
+
+
 def wrap_angle(a):
     """Angle(s) in radians folded into [-pi, pi) (scalars or arrays)."""
     return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi

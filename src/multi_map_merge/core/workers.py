@@ -28,7 +28,7 @@ from typing import Dict, List, Optional, Tuple
 
 import numpy as np
 
-from ..runtime import process
+from ..runtime import pool as local_pool
 from ..runtime.memory import run_task
 from .config import MergeConfig
 from .features import Features
@@ -36,8 +36,6 @@ from .pair import PairInput, PairResult, align_pair, crop_known, describe_versio
 from .robot_map import RobotMap
 
 _MERGERS = itertools.count()
-_POOL = None
-_POOL_SIZE = 0
 # With ``workers: 0`` (one per core), maps whose known parts (their crops) hold fewer cells than
 # this in all are estimated in this process: on a few small maps (a Turtlebot3 team in a house or
 # a lab) the workers save a few tens of milliseconds per cold cycle, and the memory they take while
@@ -45,6 +43,11 @@ _POOL_SIZE = 0
 # Larger problems, where the workers save up to seconds, use the pool; so does an explicit
 # ``workers`` >= 2, always.
 POOL_FROM_CELLS = 400_000
+
+# the modules a forkserver's workers import before their first job: the pair estimation's
+PRELOAD = [__name__.rsplit('.', 1)[0] + '.pair']
+# what this module derives once per map version (RobotMap.memo)
+CROP, FEATURES = 'crop', 'features'
 
 
 class PairWorkers:
@@ -56,47 +59,21 @@ class PairWorkers:
         # names its maps in worker caches; unique across machines too (a Dask cluster's workers
         # serve the mergers of several machines, whose process ids may be the same)
         self.uid = '%d-%d-%s' % (os.getpid(), next(_MERGERS), os.urandom(4).hex())
-        self._features: Dict[str, Tuple[tuple, Features]] = {}   # in the crops' cells
-        self._crops: Dict[str, Tuple[tuple, np.ndarray, Tuple[int, int]]] = {}
-
-    def forget(self, name: str) -> None:
-        """Drop what was derived from a robot's maps."""
-        self._features.pop(name, None)
-        self._crops.pop(name, None)
 
     def crop(self, m: RobotMap) -> Tuple[np.ndarray, Tuple[int, int]]:
         """The known part of a map's levels and its (col, row) offset, once per map version:
         what features are computed on and what goes to the worker processes."""
-        cached = self._crops.get(m.name)
-        if cached is None or cached[0] != m.key:
-            c = self.config
-            lv = m.grid.levels(c.free_thresh, c.occupied_thresh)
-            cached = self._crops[m.name] = (m.key,) + crop_known(
-                lv, m.grid.known_box(c.free_thresh, c.occupied_thresh))
-        return cached[1], cached[2]
+        c = self.config
+        return m.memo(CROP, lambda: crop_known(m.grid.levels(c.free_thresh, c.occupied_thresh),
+                                               m.grid.known_box(c.free_thresh, c.occupied_thresh)))
 
     def features_of(self, m: RobotMap) -> Features:
         """(1) features of a map (in its crop's cells), computed once per map version."""
-        cached = self._features.get(m.name)
-        if cached is None or cached[0] != m.key:
-            self._features[m.name] = (m.key, describe_version(self.config, self.crop(m)[0], self.uid,
-                                                              m.name, m.version))
-        return self._features[m.name][1]
+        return m.memo(FEATURES, lambda: describe_version(self.config, self.crop(m)[0], self.uid, m.name, m.version))
 
     def _stale(self, maps: Dict[str, RobotMap]) -> List[RobotMap]:
         """The maps whose features are not those of their current version."""
-        return [m for m in maps.values() if self._features.get(m.name, (None,))[0] != m.key]
-
-    def _features_all(self, maps: Dict[str, RobotMap], pool) -> None:
-        """Features of every map that changed, in ``pool``'s worker processes (None: here)."""
-        todo = self._stale(maps)
-        if not todo:
-            return
-        c = self.config
-        levels = [self.crop(m)[0] for m in todo]
-        for m, f in zip(todo, _map(pool, describe_version, [c] * len(todo), levels, [self.uid] * len(todo),
-                                   [m.name for m in todo], [m.version for m in todo])):
-            self._features[m.name] = (m.key, f)
+        return [m for m in maps.values() if not m.memo_ready(FEATURES)]
 
     def pool_for(self, maps: Dict[str, RobotMap]):
         """The worker pool that estimates these maps, or None to estimate them in this process:
@@ -104,13 +81,13 @@ class PairWorkers:
         c = self.config
         if c.workers == 0 and sum(self.crop(m)[0].size for m in maps.values()) < POOL_FROM_CELLS:
             return None
-        return _pool(c.workers)
+        return local_pool.shared(c.workers, PRELOAD)
 
-    def runner(self, maps: Dict[str, RobotMap]) -> Optional[PoolRunner]:
+    def runner(self, maps: Dict[str, RobotMap]) -> Optional[local_pool.PoolRunner]:
         """The local pool's workers for other work on these maps (:class:`PoolRunner`), or
         None to do it in this process (:meth:`pool_for`)."""
-        pool = self.pool_for(maps)
-        return PoolRunner(pool) if pool is not None else None
+        local = self.pool_for(maps)
+        return local_pool.PoolRunner(local) if local is not None else None
 
     def input(self, m: RobotMap, features: bool = True) -> PairInput:
         """A map as one side of a pair: its crop, and its features unless ``features`` is False
@@ -158,7 +135,7 @@ class PairWorkers:
         try:
             return self._align_pairs(maps, todo, self.pool_for(maps), tracks, budget)
         except BrokenProcessPool:
-            _discard_pool()
+            local_pool.discard()
             raise
 
     def _align_pairs(self, maps: Dict[str, RobotMap], todo: List[Tuple[str, str]], pool,
@@ -219,7 +196,7 @@ class PairWorkers:
             for fut in done:
                 kind, what = running.pop(fut)
                 if kind == 'features':
-                    self._features[what.name] = (what.key, fut.result())
+                    what.remember(FEATURES, fut.result())
                     ready.add(what.name)
                 else:
                     results[what] = fut.result()
@@ -227,77 +204,7 @@ class PairWorkers:
         return [results.get(ab) for ab in todo]
 
 
-class PoolRunner:
-    """Calls run in the local pool's worker processes (:class:`joint.Runner`): a merger's
-    serial steps that split into independent pieces (:func:`joint.refine_placements`). A
-    worker that died breaks the pool, as :meth:`PairWorkers.align_pairs` says."""
-
-    def __init__(self, pool):
-        self.pool = pool
-        self.workers = int(getattr(pool, '_max_workers', 0) or 1)
-
-    def __call__(self, fn, calls: List[tuple]) -> list:
-        try:
-            futures = [self.pool.submit(run_task, fn, *args) for args in calls]
-            return [f.result() for f in futures]
-        except BrokenProcessPool:
-            _discard_pool()
-            raise
-
-
-def _map(pool, fn, *iterables) -> list:
-    """fn over the arguments in ``pool``'s workers (in this process when it is None)."""
-    if pool is None:
-        return list(map(fn, *iterables))
-    return list(pool.map(run_task, itertools.repeat(fn), *iterables))
-
-
-def _discard_pool() -> None:
-    """Drop a broken pool: the next :func:`_pool` starts a new one."""
-    global _POOL, _POOL_SIZE
-    if _POOL is not None:
-        _POOL.shutdown(wait=False)
-    _POOL, _POOL_SIZE = None, 0
-
-
-def workers_count(workers: int) -> int:
-    """Processes of the local pool for ``workers`` (:attr:`MergeConfig.workers`: 0 = one per core)."""
-    return workers or os.cpu_count() or 1
-
-
-def _pool(workers: int):
-    """The process pool shared by every merger in this process (None: work inline)."""
-    global _POOL, _POOL_SIZE
-    n = workers_count(workers)
-    if (n <= 1 and _POOL is not None) or (n > 1 and (_POOL is None or _POOL_SIZE != n)):
-        start_pool(n)   # (started early with the default size, then configured otherwise)
-    return _POOL
-
-
 def start_pool(workers: int = 0) -> None:
-    """Start the worker pool now (``workers`` as :attr:`MergeConfig.workers`: 0 = one per core).
-
-    Called while the process runs no other thread (the node: before ``rospy.init_node``), the
-    workers are forked from it and share its pages: its imports cost the machine once, not once
-    per worker. Otherwise they come from a 'forkserver' that has imported the estimation's
-    modules, so that at least the workers share those."""
-    global _POOL, _POOL_SIZE
-    from concurrent.futures import ProcessPoolExecutor
-    # This process places the robots (the pose graph's and the covariances' small solves, a
-    # few 3N x 3N systems per cycle): OpenBLAS's LAPACK runs even a 9 x 9 solve on its threads,
-    # which take milliseconds to wake while the workers keep the cores busy, microseconds on one
-    process.one_blas_thread()
-    n = workers_count(workers)
-    if _POOL is not None:
-        # waiting for the old workers (idle: a pool is replaced only when the configured size
-        # differs from the one started early); Python 3.8's executor left behind with wait=False
-        # can hang the interpreter's exit
-        _POOL.shutdown(wait=True)
-        _POOL, _POOL_SIZE = None, 0
-    if n <= 1:
-        return
-    ctx = process.start_context([__name__.rsplit('.', 1)[0] + '.pair'])
-    pool = ProcessPoolExecutor(max_workers=n, mp_context=ctx, initializer=process.worker_init)
-    if ctx.get_start_method() == 'fork':
-        process.fork_now(pool)
-    _POOL, _POOL_SIZE = pool, n
+    """Start the local worker pool now (:func:`runtime.pool.start_pool`), its forkserver, when
+    there is one, having imported the pair estimation's module."""
+    local_pool.start_pool(workers, PRELOAD)

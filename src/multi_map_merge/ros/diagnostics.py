@@ -13,8 +13,8 @@ from typing import Dict, List, Optional
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 
 from ..core.deform import REPORT_BENT
-from ..core.merger import RobotStatus
 from ..core.state import placement_dict
+from ..core.status import RobotStatus
 
 # how a placement's numbers (:func:`core.state.placement_dict`) are written on /diagnostics
 FORMAT = {'inlier_ratio': '%.3f', 'agreement': '%.3f', 'inliers': '%d', 'x': '%.3f', 'y': '%.3f', 'yaw': '%.4f',

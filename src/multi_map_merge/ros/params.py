@@ -9,7 +9,7 @@ parameter's default (a merger that refuses to start takes a robot team's map awa
 the error line says what was used instead). A private parameter the node does not know is a
 warning naming the closest known one. m-explore's (``multirobot_map_merge``) names are read as
 aliases; when an alias and our own name are both set, ours wins, with a warning (our own former
-names: unless ours is at its default, :meth:`MergeConfig.former_name_wins`).
+names: unless ours is at its default, :func:`~multi_map_merge.core.parameters.former_name_wins`).
 """
 from __future__ import annotations
 

@@ -3,6 +3,7 @@ MergeConfig's fields, config/map_merge.yaml, the README's parameter table and th
 reads are derived from it or checked against it here. A parameter declared anywhere else fails."""
 import ast
 import os
+import pickle
 import re
 from dataclasses import fields
 
@@ -10,6 +11,7 @@ import pytest
 import yaml
 from conftest import REPO
 
+from multi_map_merge.cli import params_doc
 from multi_map_merge.core import parameters as P
 from multi_map_merge.core.config import MergeConfig
 
@@ -40,6 +42,19 @@ def test_mergeconfig_fields_are_the_tables_parameters_with_their_defaults():
     assert MergeConfig().initial_poses is not MergeConfig().initial_poses   # mutable defaults not shared
 
 
+def test_mergeconfig_is_written_out_field_by_field_with_each_parameters_type():
+    """MergeConfig is a plain dataclass (its fields readable in config.py); each field's declared
+    type is its parameter's kind, and it pickles by its own name (the worker processes)."""
+    kinds = {'bool': 'bool', 'int': 'int', 'double': 'float', 'string': 'str', 'string list': 'List[str]',
+             'double list': 'List[float]', 'dict': 'Dict[str, List[float]]'}
+    declared = {f.name: f.type for f in fields(MergeConfig)}
+    for p in P.config_parameters():
+        assert declared[p.name] == kinds[p.kind], p.name
+    assert MergeConfig.__module__ == 'multi_map_merge.core.config'
+    c = MergeConfig(workers=3, initial_poses={'a': [1.0, 2.0, 0.5]})
+    assert pickle.loads(pickle.dumps(c)) == c
+
+
 def test_every_parameter_has_a_unit_or_none_a_meaning_and_a_type():
     for p in P.parameters():
         assert p.meaning and '\n' not in p.meaning and '|' not in p.doc, p.name
@@ -51,7 +66,7 @@ def test_every_parameter_has_a_unit_or_none_a_meaning_and_a_type():
 
 def test_committed_yaml_is_generated_from_the_tables():
     """tools/gen_params.py writes it: run it after editing core/parameters.py."""
-    assert read('config', 'map_merge.yaml') == P.yaml_text()
+    assert read('config', 'map_merge.yaml') == params_doc.yaml_text()
 
 
 def test_yaml_names_and_defaults_are_the_tables():
@@ -64,15 +79,15 @@ def test_yaml_names_and_defaults_are_the_tables():
 def test_readme_parameter_table_is_generated_from_the_tables():
     """The block between the markers is tools/gen_params.py's (the README may move it whole)."""
     text = read('README.md')
-    assert text.count(P.README_BEGIN) == 1 and text.count(P.README_END) == 1
-    assert P.markdown_table() in text
+    assert text.count(params_doc.README_BEGIN) == 1 and text.count(params_doc.README_END) == 1
+    assert params_doc.markdown_table() in text
 
 
 def test_no_readme_parameter_row_outside_the_tables():
     """Every row `| ~name | ...` of a README table with a default column is a parameter of the
     tables, with the table's default; none is documented outside the generated block."""
     text = read('README.md')
-    block = text[text.index(P.README_BEGIN):text.index(P.README_END)]
+    block = text[text.index(params_doc.README_BEGIN):text.index(params_doc.README_END)]
     outside = text.replace(block, '')
     header = None
     for line in text.splitlines():
@@ -89,7 +104,7 @@ def test_no_readme_parameter_row_outside_the_tables():
         assert name in ALL, 'README documents ~%s, which no table declares' % name
         assert line not in outside, 'README documents ~%s outside the generated block' % name
         cells = [c.strip() for c in line.strip('|').split(' | ')]
-        assert cells[header.index('default')] == P._md_default(ALL[name]), name
+        assert cells[header.index('default')] == params_doc._md_default(ALL[name]), name
 
 
 def _node_modules():

@@ -167,7 +167,7 @@ def test_a_measured_turn_widens_the_heading_and_the_position():
 
 def test_the_status_names_what_each_robots_map_turned_against_the_others():
     from multi_map_merge.core.links import Link
-    from multi_map_merge.core.merger import _turns_apart
+    from multi_map_merge.core.status import _turns_apart
 
     def link(parent, child, parent_turn, child_turn):
         return Link(parent, child, np.eye(3), 0.5, 0.9, 30, 60, 0.0,

@@ -164,7 +164,7 @@ def test_a_robot_is_refined_against_the_maps_it_can_meet_most():
 
 
 def test_worker_processes_give_the_poses_refined_here(monkeypatch):
-    """With a runner (:class:`workers.PoolRunner`, two worker processes) a round's refinements
+    """With a runner (:class:`runtime.pool.PoolRunner`, two worker processes) a round's refinements
     (AHEAD_FROM or more) run ahead in the workers, and a robot whose neighbour moved earlier in the round is refined
     again here: the poses are those of the refinement in this process, bit for bit. Six
     windows of the Intel lab, their anchors off the truth by a few centimetres and a degree so
@@ -172,8 +172,8 @@ def test_worker_processes_give_the_poses_refined_here(monkeypatch):
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
 
-    from multi_map_merge.core.workers import PoolRunner
     from multi_map_merge.lab.pieces import pieces_windows
+    from multi_map_merge.runtime.pool import PoolRunner
     world = load_map(shared_file(INTEL_MAP))
     team = pieces_windows(world, 6, seed=3)
     grids = {'r%d' % k: g for k, (g, _) in enumerate(team)}

@@ -7,7 +7,7 @@ from conftest import MAZE, merged, pose_error, shared_file, truth
 from multi_map_merge.core.config import MergeConfig
 from multi_map_merge.core.grid import Grid, known_bbox
 from multi_map_merge.core.mapio import load_map
-from multi_map_merge.core.merger import MapMerger
+from multi_map_merge.core.merger import PLANNED, MapMerger
 from multi_map_merge.core.schedule import SLOW_EVERY
 from multi_map_merge.core.state import load_state, save_state
 from multi_map_merge.lab.pieces import cut_piece
@@ -183,7 +183,7 @@ def test_early_look_alike_is_replaced_despite_its_higher_inlier_ratio(ps, pose_g
     wrong = truth(ps[0][1], ps[1][1]) @ se2(1.2, 0.0, 0.0)   # 1.2 m along, as on a corridor
     # The look-alike is planted as the kept link: no public way leads there on these maps (a
     # saved link is verified again before use, and this one agrees 0.24 on the grids).
-    m._links[('a', 'b')] = Link('a', 'b', wrong, 1.0, 0.99, 40, 40, 0.0, 1000)
+    m._ledger.links[('a', 'b')] = Link('a', 'b', wrong, 1.0, 0.99, 40, 40, 0.0, 1000)
     m.estimate()                        # ... then the look-alike is kept (maps unchanged) ...
     assert pose_error(m.placements()['b'].T, wrong)[0] < 0.35
     for k in range(2):                  # new map versions (the same levels): the rule alone acts
@@ -282,7 +282,7 @@ def test_a_map_restarted_during_an_estimation_cycle_is_not_placed_by_it(intel):
     event = m.update_map('b', Grid(g.data[:60, :60].copy(), g.resolution, (0.0, 0.0, 0.0)))
     assert event and 'restarted' in event
     for (a, b), r in zip(todo, estimates):
-        m._keep(maps[a], maps[b], r)
+        m._keep(maps[a], maps[b], r, PLANNED)
     events = m._place(maps, ref)
     assert 'b' not in m.placements() and not m.links(), (m.placements(), events)
     assert not any(e.startswith('b ') for e in events)
@@ -332,7 +332,7 @@ def test_prior_set_and_cleared_while_running(intel):
 # -- which robot is the reference (the merged frame is its map frame) when none is given
 
 def test_decide_reference_follows_the_first_name_with_a_map_until_another_robot_is_merged():
-    from multi_map_merge.core.merger import decide_reference
+    from multi_map_merge.core.team import decide_reference
     assert decide_reference('', False, [], []) == ('', False)
     assert decide_reference('', False, ['tb3_1'], []) == ('tb3_1', False)
     # a lower name's map comes while the merge is tb3_1's alone: it takes the reference over
@@ -349,7 +349,7 @@ def test_decide_reference_follows_the_first_name_with_a_map_until_another_robot_
 def test_the_reference_does_not_depend_on_which_map_came_first(ps, order):
     """Maps fed in any order before a cycle: the reference is a (first by name), fixed once b
     and c are merged with it, and b, c are placed in a's frame."""
-    from multi_map_merge.core.merger import REF_FIRST_BY_NAME
+    from multi_map_merge.core.team import REF_FIRST_BY_NAME
     m = MapMerger(MergeConfig())
     for n in order:
         m.update_map(n, ps['abc'.index(n)][0])
@@ -398,7 +398,7 @@ def test_a_cycle_begun_under_a_former_reference_places_nothing(ps):
 
 
 def test_a_given_or_proposed_reference_is_fixed_from_the_start(ps):
-    from multi_map_merge.core.merger import REF_PARAMETER, REF_PROPOSED
+    from multi_map_merge.core.team import REF_PARAMETER, REF_PROPOSED
     m = MapMerger(MergeConfig(reference_robot='c'))
     m.update_map('a', ps[0][0])
     assert (m.reference, m.reference_choice().fixed, m.reference_choice().why) == ('c', True, REF_PARAMETER)

@@ -10,7 +10,7 @@ import pytest
 
 from multi_map_merge.core.config import MergeConfig
 from multi_map_merge.core.links import Link
-from multi_map_merge.core.merger import REF_PROPOSED, MapMerger
+from multi_map_merge.core.merger import MapMerger
 from multi_map_merge.core.placement import PRIOR, Placement, add_priors, pin
 from multi_map_merge.core.priors import (
     PriorOfReference,
@@ -20,6 +20,7 @@ from multi_map_merge.core.priors import (
     quaternion_yaw,
     relative_pose,
 )
+from multi_map_merge.core.team import REF_PROPOSED
 from multi_map_merge.core.transforms import pose_distance, se2, xyyaw
 
 
@@ -201,7 +202,7 @@ def test_the_reference_message_says_whether_it_may_still_change():
 def test_the_reference_line_says_which_robot_why_and_how_to_choose_it():
     """ReferenceChoice.message: the line the node logs of the reference robot: which, why, and
     how to choose it."""
-    from multi_map_merge.core.merger import REF_FIRST_BY_NAME, REF_PARAMETER, ReferenceChoice
+    from multi_map_merge.core.team import REF_FIRST_BY_NAME, REF_PARAMETER, ReferenceChoice
     assert ReferenceChoice('', False, REF_FIRST_BY_NAME).message() == ''
     assert ReferenceChoice('tb3_2', True, REF_PARAMETER).message() == \
         'reference robot tb3_2 (set by ~reference_robot): the merged frame is its map frame'

@@ -16,6 +16,7 @@ import numpy as np
 from multi_map_merge.core import workers
 from multi_map_merge.core.config import MergeConfig
 from multi_map_merge.core.pair import compute_features
+from multi_map_merge.runtime import pool
 from multi_map_merge.runtime.memory import run_task
 
 def main():
@@ -24,16 +25,16 @@ def main():
     inline = compute_features(MergeConfig(), levels)
     methods = []
     workers.start_pool(2)
-    methods.append(workers._POOL._mp_context.get_start_method())
-    a = workers._POOL.submit(run_task, compute_features, MergeConfig(), levels).result()
+    methods.append(pool._POOL._mp_context.get_start_method())
+    a = pool._POOL.submit(run_task, compute_features, MergeConfig(), levels).result()
     t = threading.Thread(target=time.sleep, args=(5,), daemon=True)
     t.start()
     workers.start_pool(3)      # a thread runs now: no fork
-    methods.append(workers._POOL._mp_context.get_start_method())
-    b = workers._POOL.submit(run_task, compute_features, MergeConfig(), levels).result()
+    methods.append(pool._POOL._mp_context.get_start_method())
+    b = pool._POOL.submit(run_task, compute_features, MergeConfig(), levels).result()
     workers.start_pool(1)      # inline: no pool
     same = all(np.array_equal(x.points, inline.points) for x in (a, b))
-    print(methods, workers._POOL is None, same)
+    print(methods, pool._POOL is None, same)
 
 if __name__ == '__main__':
     main()
@@ -61,6 +62,7 @@ import numpy as np
 from multi_map_merge.core import workers
 from multi_map_merge.core.config import MergeConfig
 from multi_map_merge.core.pair import compute_features
+from multi_map_merge.runtime import pool
 from multi_map_merge.runtime.memory import run_task
 
 def main():
@@ -70,9 +72,9 @@ def main():
         cv2.warpAffine(img, np.eye(2, 3), (600, 600))
     workers.start_pool(2)
     levels = np.where(np.random.default_rng(2).random((120, 160)) < 0.1, 2, 1).astype(np.uint8)
-    fs = [f.result(timeout=60) for f in [workers._POOL.submit(run_task, compute_features, MergeConfig(), levels)
+    fs = [f.result(timeout=60) for f in [pool._POOL.submit(run_task, compute_features, MergeConfig(), levels)
                                          for _ in range(4)]]
-    print(workers._POOL._mp_context.get_start_method(), len(fs), cv2.getNumThreads())
+    print(pool._POOL._mp_context.get_start_method(), len(fs), cv2.getNumThreads())
 
 if __name__ == '__main__':
     main()
@@ -179,7 +181,7 @@ def _worked_here(config, maps):
     for name, g in maps.items():
         m.update_map(name, g)
     m.estimate()
-    cells = sum(m._workers.crop(r)[0].size for r in m._maps.values())
+    cells = sum(m._workers.crop(r)[0].size for r in m._team.maps.values())
     return cache._DERIVED_OWNER == m._workers.uid, cells
 
 
@@ -210,11 +212,11 @@ def test_a_killed_worker_fails_one_cycle_then_a_new_pool_estimates(intel):
     import pytest
     from conftest import pose_error, truth
 
-    from multi_map_merge.core import workers
     from multi_map_merge.core.config import MergeConfig
     from multi_map_merge.core.grid import Grid
     from multi_map_merge.core.merger import MapMerger
     from multi_map_merge.lab.pieces import cut_piece, split_rects
+    from multi_map_merge.runtime import pool as local_pool
     rects = split_rects(intel, 2, 0.35)
     pieces = [cut_piece(intel, r, p) for r, p in zip(rects, [(0.0, 0.0, 0.0), (-2.0, 3.0, 2.6)])]
     m = MapMerger(MergeConfig(workers=2, reference_robot='a'))
@@ -222,7 +224,7 @@ def test_a_killed_worker_fails_one_cycle_then_a_new_pool_estimates(intel):
     m.update_map('b', pieces[1][0])
     m.estimate()
     assert 'b' in m.placements()
-    pool = workers._POOL
+    pool = local_pool._POOL
     pids = list(pool._processes)
     assert pids, 'no worker process'
     os.kill(pids[0], signal.SIGKILL)
@@ -237,8 +239,8 @@ def test_a_killed_worker_fails_one_cycle_then_a_new_pool_estimates(intel):
     m.update_map('b', Grid(data, g.resolution, g.origin))
     with pytest.raises(BrokenProcessPool):
         m.estimate()
-    assert workers._POOL is None           # the broken pool was let go
+    assert local_pool._POOL is None           # the broken pool was let go
     m.estimate()                           # a new pool
-    assert workers._POOL is not None and workers._POOL is not pool
+    assert local_pool._POOL is not None and local_pool._POOL is not pool
     d, a = pose_error(m.placements()['b'].T, truth(pieces[0][1], pieces[1][1]))
     assert d < 0.1 and a < 1.0

@@ -9,8 +9,8 @@ pytest.importorskip('diagnostic_msgs')   # the ROS shell: not on a stack without
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus  # noqa: E402
 
-from multi_map_merge.core.merger import RobotStatus  # noqa: E402
 from multi_map_merge.core.placement import Placement  # noqa: E402
+from multi_map_merge.core.status import RobotStatus  # noqa: E402
 from multi_map_merge.core.transforms import se2  # noqa: E402
 from multi_map_merge.ros.diagnostics import (  # noqa: E402
     diagnostics_by_robot,
