@@ -82,7 +82,7 @@ def err_vec(T, T_true):
 def evaluate(m, truths):
     """(links, robots) records of one merged case; truths: name -> T_world_k."""
     links, robots = [], []
-    for (a, b), e in sorted(m._ledger.links.items()):
+    for (a, b), e in sorted(m._linker.ledger.links.items()):
         T_true = inverse(truths[a]) @ truths[b]
         ev = err_vec(e.T, T_true)
         cov = link_cov(m, e)
@@ -115,7 +115,7 @@ def link_inputs(m, truths):
     """[(parent levels, child levels, A, T, parent resolution, origin, true error)] of the kept
     links of a merged case: what calibration recomputes the covariance of."""
     out = []
-    for (a, b), e in sorted(m._ledger.links.items()):
+    for (a, b), e in sorted(m._linker.ledger.links.items()):
         pa, ch = m._team.maps[a].grid, m._team.maps[b].grid
         A = pose_to_image(e.T, pa.resolution, pa.origin, ch.resolution, ch.origin)
         out.append((pa.levels(), ch.levels(), A, e.T, pa.resolution, pa.origin,

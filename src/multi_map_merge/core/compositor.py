@@ -14,15 +14,19 @@ from .config import MergeConfig
 from .grid import Grid
 from .placement import Placement
 from .robot_map import RobotMap
+from .team import TeamListener
 
 
-class Compositor:
+class Compositor(TeamListener):
     """The merged grid of a merger's maps and its caches (see the module's docstring)."""
 
     def __init__(self, config: MergeConfig):
         self.config = config
-        self._patches: Dict[str, Tuple[tuple, Optional[Patch]]] = {}
-        self._merged: Optional[Tuple[tuple, Grid]] = None   # (patch identities, merged grid) of the last compose
+        # per robot (key, patch, its field: held so that no other field takes its id, of the key)
+        self._patches: Dict[str, Tuple[tuple, Optional[Patch], Optional[deform.Field]]] = {}
+        # the last compose's lattice and robots, patches and merged grid: its patches are held, so
+        # that a new patch never takes the memory of one of them (they are compared by identity)
+        self._merged: Optional[Tuple[tuple, list, Grid]] = None   # (lattice, robots), patches, grid
 
     def forget(self, name: Optional[str] = None) -> None:
         """Drop the patch of robot ``name`` (None: of every robot): it is warped again."""
@@ -30,6 +34,12 @@ class Compositor:
             self._patches.clear()
         else:
             self._patches.pop(name, None)
+
+    def robot_forgotten(self, name: str, reference: bool) -> None:
+        self.forget(None if reference else name)   # (the reference's map frame is the merged frame)
+
+    def reference_moved(self, old: str, new: str, has_map: bool) -> None:
+        self.forget()
 
     def reset(self) -> None:
         """Drop every patch and the last merged grid: the next compose warps every map again."""
@@ -51,11 +61,13 @@ class Compositor:
                 if f is not None and not (version == m.version and np.array_equal(f.T, pl.T)):
                     f = None
                 patches.append(self._patch(m, pl.T, lattice, f))
-        key = tuple(id(p) for p in patches)
-        if self._merged is not None and self._merged[0] == key:
-            return self._merged[1]   # nothing moved or changed: the same merged grid
+        key = (lattice.key(), tuple(sorted(n for n in placements if n in maps)))
+        last = self._merged
+        if (last is not None and last[0] == key and len(last[1]) == len(patches)
+                and all(a is b for a, b in zip(last[1], patches))):
+            return last[2]           # nothing moved or changed: the same merged grid
         grid = composite(patches, lattice, self.config.merged_map_frame, self.config.max_cells)
-        self._merged = (key, grid)
+        self._merged = (key, patches, grid)
         return grid
 
     def _patch(self, m: RobotMap, T: np.ndarray, lattice: Lattice,
@@ -74,5 +86,5 @@ class Compositor:
             p = deform.warp_field_patch(kv[1], kv[0], m.grid.resolution, m.grid.origin, field, lattice, c.max_cells)
         else:
             p = warp_patch(kv[1], kv[0], m.grid.resolution, m.grid.origin, T, lattice, c.max_cells)
-        self._patches[m.name] = (key, p)
+        self._patches[m.name] = (key, p, field)
         return p

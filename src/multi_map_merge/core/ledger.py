@@ -26,6 +26,7 @@ from . import schedule
 from .links import Link
 from .pair import PairResult
 from .priors import relative_pose
+from .team import TeamListener
 from .transforms import pose_distance, within
 
 Pair = schedule.Pair
@@ -35,10 +36,11 @@ Pair = schedule.Pair
 TRACK_MOVE = (0.01, math.radians(0.1))
 
 
-class PairLedger:
+class PairLedger(TeamListener):
     """Every per-pair record and the schedule's counters (see the module's docstring)."""
 
     def __init__(self):
+        self.version = 0   # bumped whenever the kept links change (the merger's state_version)
         self.links: Dict[Pair, Link] = {}
         self.results: Dict[Pair, PairResult] = {}
         self.restored: Dict[Pair, Link] = {}
@@ -62,13 +64,18 @@ class PairLedger:
         for records in (self.links, self.drift_covs, self.restored):
             for k in [k for k in records if robot in k]:
                 del records[k]
+        self.version += had
         return had
+
+    def robot_forgotten(self, name: str, reference: bool) -> None:
+        self.forget(name)
 
     def reprior(self, robot: str, priors: Mapping[str, List[float]], tolerance: Tuple[float, float]) -> List[str]:
         """A robot's prior changed (``priors``: all of them now): its pairs are aligned again
         from features, its kept links too (under the new prior another solution may be the right
         one), and those of its kept links that contradict the priors by more than ``tolerance``
         (metres, radians) go. Returns what was dropped."""
+        self.version += 1
         for records in (self.tried, self.aligned, self.refreshed):
             for k in [k for k in records if robot in k]:
                 del records[k]
@@ -144,6 +151,7 @@ class PairLedger:
             return False
         self.links[key] = link
         self.pinned[key] = known
+        self.version += 1
         return True
 
     def track(self, key: Pair, r: PairResult, old: Optional[Link], T: np.ndarray) -> bool:
@@ -168,6 +176,7 @@ class PairLedger:
             self.links[key] = dataclasses.replace(old, T=T, agreement=r.agreement, overlap=r.overlap,
                                                   stamp=time.time(), cov=r.cov, bend=r.bend, centre=r.centre,
                                                   parent_turn=r.parent_turn, child_turn=r.child_turn)
+            self.version += 1
             return True
         if r.overlap <= old.overlap:
             return False             # as links.replacement: the pose refined on more overlap only
@@ -175,6 +184,7 @@ class PairLedger:
             return False             # the link stands: placing the team again would move nothing
         self.links[key] = dataclasses.replace(old, T=T, agreement=r.agreement, overlap=r.overlap,
                                               stamp=time.time())
+        self.version += 1
         return True
 
     # ------------------------------------------------------------------ restored links
@@ -190,4 +200,5 @@ class PairLedger:
             return False
         e.agreement = agreement
         self.links[key] = e
+        self.version += 1
         return True

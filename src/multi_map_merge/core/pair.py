@@ -8,17 +8,28 @@ for the next pair is kept in :mod:`cache`.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import Optional, Tuple
 
-import cv2
 import numpy as np
 
 from . import bend, cache, covariance, drift, matching, verify
 from .config import MergeConfig
-from .features import FeatureExtractor, Features, coarsening
-from .grid import known_bbox
-from .refine import WALL_FIELD_MARGIN, WallField, occupied_points, refine
+from .pair_data import (  # noqa: F401  (PairInput, PairResult, crop_known, compute_features: this module's API too)
+    CROP_MARGIN,
+    PairInput,
+    PairResult,
+    at_one_scale,
+    compute_features,
+    crop_cells,
+    crop_known,
+    describe_version,
+    grid_cells,
+    known_of,
+    wall_field_of,
+    wall_points_of,
+    walls_of,
+)
+from .refine import refine
 from .transforms import (
     apply,
     cell_to_metric,
@@ -31,170 +42,6 @@ from .transforms import (
     within,
     within_tolerance,
 )
-
-
-@dataclass
-class PairResult:
-    """One pair's result: the transform between two grids (cells of the child -> cells of the
-    parent) and how well it is supported.
-
-    Attributes:
-        A: 3x3 rigid matrix, cell coordinates of the child's grid -> of the parent's grid.
-        matches: number of matches that passed the ratio test (N_inlier + N_outlier).
-        inliers: RANSAC inliers N_inlier.
-        inlier_ratio: the paper's reliability, 0..1: inliers among the matches.
-        agreement: verification score 0..1: of the occupied cells that land on known cells of
-            the other grid, the fraction that meet an occupied cell there (within tolerance)
-            rather than a free one.
-        overlap: cells known in both grids under ``A``.
-        accepted: passed every gate (min inliers, min overlap, min agreement).
-        reason: why it was rejected, '' when accepted.
-        runner_up: the best clearly different placement that also passed every gate, as
-            (agreement, metres, degrees from this one); None when there was none.
-        stamp: seconds (time.time()) when the merger received it; 0 until then.
-        cov: of an accepted estimate, 3x3 covariance of (x, y, yaw) of the link's pose (the
-            child's map frame in the parent's): metres^2 / radians^2, x, y in the parent's
-            frame (:mod:`covariance`, with the model error of :mod:`bend` added); None when not
-            computed.
-        bend: of an accepted estimate, metres two halves of the overlap land apart under their
-            own fits (:mod:`bend`); 0 when not measured.
-        centre: of an accepted estimate, the centre (x, y) of the child's walls on the parent's
-            known cells, metres in the parent's map frame: where the link was fitted, whose
-            distance from each map's origin is what the maps drifted on the way (:mod:`drift`);
-            None when not computed.
-        parent_turn, child_turn: of an accepted estimate, radians each map turned between its
-            frame's origin and the overlap, read off its walls' direction (:func:`drift.turn`);
-            None where its walls do not tell.
-        few_evidence: refused only for too little evidence (fewer than ``few_inliers`` RANSAC
-            inliers, agreeing below ``few_inliers_min_agreement``), every other gate passed: a
-            link that another such link can corroborate (:mod:`corroborate`).
-        tracked: the kept link followed onto new maps (:func:`track_pair`), not a feature
-            match: its ``matches``, ``inliers`` and ``inlier_ratio`` are zero.
-    """
-
-    A: Optional[np.ndarray]
-    matches: int = 0
-    inliers: int = 0
-    inlier_ratio: float = 0.0
-    agreement: float = 0.0
-    overlap: int = 0
-    accepted: bool = False
-    reason: str = ''
-    runner_up: Optional[Tuple[float, float, float]] = None
-    stamp: float = 0.0
-    cov: Optional[np.ndarray] = None
-    bend: float = 0.0
-    centre: Optional[Tuple[float, float]] = None
-    few_evidence: bool = False
-    parent_turn: Optional[float] = None
-    child_turn: Optional[float] = None
-    tracked: bool = False
-
-
-@dataclass
-class PairInput:
-    """One robot's side of a pair: the known part of its working-resolution grid's levels and
-    their features. ``levels`` is a crop: its cell (c, r) is cell (c + offset[0], r + offset[1])
-    of the grid whose ``origin`` is given. (A gmapping canvas is mostly unknown; the crop is
-    what is worth sending to a worker process, once per pair.)"""
-
-    name: str
-    version: int
-    levels: np.ndarray            # uint8 levels (grid.UNKNOWN/FREE/OCCUPIED), OccupancyGrid order
-    resolution: float             # metres per cell
-    origin: Tuple[float, float, float]   # of the whole grid
-    features: Optional[Features]  # positions in the crop's cells; None where only tracked (track_pair)
-    owner: str = ''               # the merger it comes from: (owner, name, version) is unique
-    offset: Tuple[int, int] = (0, 0)     # (col, row) of the crop's cell (0, 0) in the grid
-
-
-# Unknown cells kept around the known box in a crop: the wall field looks this far beyond the
-# known cells (a wall point landing just outside the parent's map still finds its wall), so a
-# pair estimated on crops is the pair estimated on the whole grids.
-CROP_MARGIN = WALL_FIELD_MARGIN
-
-
-def crop_known(levels: np.ndarray, box: Optional[Tuple[int, int, int, int]]) -> Tuple[np.ndarray, Tuple[int, int]]:
-    """(levels of ``box`` (rows, cols, half-open; the known cells' box) grown by CROP_MARGIN
-    within the grid, its (col, row) offset); the whole grid when nothing is known."""
-    if box is None:
-        return levels, (0, 0)
-    h, w = levels.shape
-    r0, r1 = max(0, box[0] - CROP_MARGIN), min(h, box[1] + CROP_MARGIN)
-    c0, c1 = max(0, box[2] - CROP_MARGIN), min(w, box[3] + CROP_MARGIN)
-    return np.ascontiguousarray(levels[r0:r1, c0:c1]), (c0, r0)
-
-
-def _grid_cells(A: np.ndarray, pa: PairInput, ch: PairInput) -> np.ndarray:
-    """A transform between the crops' cells as one between the grids' cells."""
-    return se2(pa.offset[0], pa.offset[1], 0.0) @ A @ se2(-ch.offset[0], -ch.offset[1], 0.0)
-
-
-def _crop_cells(A: np.ndarray, pa: PairInput, ch: PairInput) -> np.ndarray:
-    """A transform between the grids' cells as one between the crops' cells (:func:`_grid_cells`
-    undone)."""
-    return se2(-pa.offset[0], -pa.offset[1], 0.0) @ A @ se2(ch.offset[0], ch.offset[1], 0.0)
-
-
-def compute_features(config: MergeConfig, levels: np.ndarray, factor: Optional[int] = None) -> Features:
-    """(1) AKAZE features of a grid's levels, with the configured extractor (at ``factor``
-    cells per pixel, or the one the map's known area calls for)."""
-    key = (config.akaze_threshold, config.max_features, config.feature_cells)
-    return cache.extractor(key, FeatureExtractor)(levels, factor)
-
-
-def describe_version(config: MergeConfig, levels: np.ndarray, owner: str, name: str, version: int) -> Features:
-    """(1) features of version ``version`` of robot ``name``'s map (of merger ``owner``), as
-    :func:`compute_features`; what this process derived from the map's former versions is
-    dropped first: it is stale, and a description is a worker's largest working set (AKAZE's
-    scale space), so the two should not be held at once."""
-    cache.forget_other_versions(owner, name, version)
-    return compute_features(config, levels)
-
-
-DESCRIBED_AT_MOST = 16   # x feature_cells: the largest image a map is described on to match a finer one
-
-
-def _at_one_scale(config: MergeConfig, pa: PairInput, ch: PairInput) -> Tuple[Features, Features]:
-    """The pair's features described at one scale (parent's, child's). A map whose known area
-    is large is described on a coarser image (``feature_cells``), and keypoints of images at
-    different scales do not match. The coarser map is described again at the finer map's
-    factor (cached per process): the other way, a small map pooled by the big one's factor
-    keeps too few keypoints ..."""
-    coarser = pa if pa.features.factor >= ch.features.factor else ch
-    # ... but on an image of at most DESCRIBED_AT_MOST x feature_cells pixels: a whole big
-    # building at full resolution would cost a worker seconds and hundreds of MB.
-    f = max(min(pa.features.factor, ch.features.factor),
-            coarsening(_known(coarser)[0], DESCRIBED_AT_MOST * config.feature_cells))
-
-    def at(p: PairInput) -> Features:
-        if p.features.factor == f:
-            return p.features
-        return cache.derived('features/%d' % f, p, lambda p: compute_features(config, p.levels, f))
-    return at(pa), at(ch)
-
-
-def _known(p: PairInput) -> tuple:
-    """(known box, known centre) of a map."""
-    def make(p):
-        box = known_bbox(p.levels)
-        return box, _known_centre(p.levels, box)
-    return cache.derived('known', p, make)
-
-
-def _field(p: PairInput) -> WallField:
-    """Nearest walls of a map (needed where it is a pair's parent only)."""
-    return cache.derived('field', p, lambda p: WallField(p.levels))
-
-
-def _walls(p: PairInput, tolerance: int) -> verify.Walls:
-    """A map's walls for verification (needed where it is a pair's parent only)."""
-    return cache.derived('walls/%d' % tolerance, p, lambda p: verify.Walls.of(p.levels, tolerance))
-
-
-def _wall_points(p: PairInput) -> np.ndarray:
-    """Wall cells of a map (ICP source points, where it is a pair's child)."""
-    return cache.derived('points', p, lambda p: occupied_points(p.levels, _known(p)[0]))
 
 
 def prior_link(config: MergeConfig, pa: PairInput, ch: PairInput) -> Optional[np.ndarray]:
@@ -213,7 +60,7 @@ def contradicts_prior(config: MergeConfig, pa: PairInput, ch: PairInput, A: np.n
     P = prior_link(config, pa, ch)
     if P is None:
         return ''
-    T = image_to_pose(_grid_cells(A, pa, ch), pa.resolution, pa.origin, ch.resolution, ch.origin)
+    T = image_to_pose(grid_cells(A, pa, ch), pa.resolution, pa.origin, ch.resolution, ch.origin)
     if not within(T, P, config.initial_pose_tolerance):
         d, a = pose_distance(T, P)
         tol_d, tol_a = config.initial_pose_tolerance
@@ -227,8 +74,8 @@ def refined(config: MergeConfig, pa: PairInput, ch: PairInput, A: np.ndarray,
     """ICP polish of ``A`` on the walls; it may only polish, never move the estimate away.
     ``max_distance``: ICP's first pairing distance (cells), when less than RANSAC's threshold
     will do (a pose known to within a cell)."""
-    field_a = _field(pa)
-    pts_b = _wall_points(ch)
+    field_a = wall_field_of(pa)
+    pts_b = wall_points_of(ch)
     gate = config.ransac_threshold if max_distance is None else min(max_distance, config.ransac_threshold)
     A2 = refine(field_a, pts_b, A, max_distance=gate)
     if A2 is None:
@@ -254,7 +101,7 @@ def align_pair(config: MergeConfig, pa: PairInput, ch: PairInput, seed: int = 0)
     if r.accepted or r.few_evidence:     # (a refused link may be corroborated: it needs its covariance)
         _pin(config, pa, ch, r)
     if r.A is not None:
-        r.A = _grid_cells(r.A, pa, ch)
+        r.A = grid_cells(r.A, pa, ch)
     return r
 
 
@@ -267,21 +114,21 @@ def track_pair(config: MergeConfig, pa: PairInput, ch: PairInput, A: np.ndarray,
     second or more. The result's ``tracked`` is True; its inlier fields are zero (the merger keeps
     the link's own). ``pin``: an accepted result's covariance computed too (:func:`_pin`, a few
     milliseconds more; for a kept link that has none: its walls said too little when aligned)."""
-    A0 = _crop_cells(A, pa, ch)
+    A0 = crop_cells(A, pa, ch)
     h = PairResult(refined(config, pa, ch, A0) if config.refine else A0, tracked=True)
     tol = config.agreement_tolerance
-    h.agreement, h.overlap = verify.agreement(pa.levels, ch.levels, h.A, tol, (_known(pa)[0], _known(ch)[0]),
-                                              _walls(pa, tol))
+    h.agreement, h.overlap = verify.agreement(pa.levels, ch.levels, h.A, tol, (known_of(pa)[0], known_of(ch)[0]),
+                                              walls_of(pa, tol))
     _judge(config, pa, ch, h, features=False)
     if h.accepted and pin:
         _pin(config, pa, ch, h)
-    h.A = _grid_cells(h.A, pa, ch)
+    h.A = grid_cells(h.A, pa, ch)
     return h
 
 
 def _cost_field(p: PairInput) -> covariance.CostField:
     """The wall cost of a parent for :func:`covariance.pinning`, from the distances ICP uses."""
-    f = _field(p)
+    f = wall_field_of(p)
     if not f.ok:
         return covariance.CostField(p.levels)
     return covariance.CostField(p.levels, f.dist_flat[:-1].reshape(f.shape), (int(f.offset[0]), int(f.offset[1])))
@@ -301,7 +148,7 @@ def _pin(config: MergeConfig, pa: PairInput, ch: PairInput, r: PairResult) -> No
     (ICP stopped in a local minimum: along a corridor, a wall's end a few cells off), that
     pose, polished by ICP, replaces ``r.A`` if it also verifies at least as well."""
     field = cache.derived('costfield', pa, _cost_field)
-    pts = _wall_points(ch)
+    pts = wall_points_of(ch)
     p = covariance.pinning(pa.levels, ch.levels, r.A, field, pts)
     if p is None:
         return
@@ -311,20 +158,20 @@ def _pin(config: MergeConfig, pa: PairInput, ch: PairInput, r: PairResult) -> No
         cost2 = covariance.mean_cost(field, pts, A2)
         if cost2 is not None and cost2 < p.cost - covariance.BETTER_COST:
             tol = config.agreement_tolerance
-            ag, ov = verify.agreement(pa.levels, ch.levels, A2, tol, (_known(pa)[0], _known(ch)[0]),
-                                      _walls(pa, tol))
+            ag, ov = verify.agreement(pa.levels, ch.levels, A2, tol, (known_of(pa)[0], known_of(ch)[0]),
+                                      walls_of(pa, tol))
             if ag >= r.agreement and ov >= config.min_overlap_cells:
                 # the search's moments about its best pose, plus how far ICP moved it (no search
                 # again: ICP polished the pose within the search's window)
                 r.A, r.agreement, r.overlap, cov = A2, ag, ov, p.cov_best + _offset_outer(A2, p.A, p.centre)
     # a map that bends: the halves of the overlap want poses apart, which the walls' likelihood
     # about one pose does not see
-    spread = 0.5 * (bend.rms_spread(_wall_points(pa)) + bend.rms_spread(_wall_points(ch)))
-    b = bend.across_halves(_field(pa), p.points, r.A, pa.resolution, p.centre, spread)
+    spread = 0.5 * (bend.rms_spread(wall_points_of(pa)) + bend.rms_spread(wall_points_of(ch)))
+    b = bend.across_halves(wall_field_of(pa), p.points, r.A, pa.resolution, p.centre, spread)
     if b is not None:
         cov = cov + b.cov_cells()
         r.bend = b.metres
-    T = image_to_pose(_grid_cells(r.A, pa, ch), pa.resolution, pa.origin, ch.resolution, ch.origin)
+    T = image_to_pose(grid_cells(r.A, pa, ch), pa.resolution, pa.origin, ch.resolution, ch.origin)
     centre = p.centre + np.array(pa.offset, np.float64)
     r.cov = covariance.metric_covariance(cov, centre, T, pa.resolution, pa.origin)
     W = cell_to_metric(pa.resolution, pa.origin)
@@ -371,7 +218,7 @@ def prior_guess(config: MergeConfig, pa: PairInput, ch: PairInput) -> Optional[n
     P = prior_link(config, pa, ch)
     if P is None:
         return None
-    return _crop_cells(pose_to_image(P, pa.resolution, pa.origin, ch.resolution, ch.origin), pa, ch)
+    return crop_cells(pose_to_image(P, pa.resolution, pa.origin, ch.resolution, ch.origin), pa, ch)
 
 
 # the widest window searched around a prior (metres, degrees): a prior given by a click in rviz
@@ -399,7 +246,7 @@ def _near_prior(config: MergeConfig, pa: PairInput, ch: PairInput, src: np.ndarr
     # the window is then the tolerance's, wherever the walls lie
     origin = (inverse(cell_to_metric(ch.resolution, ch.origin)) @ np.array([0.0, 0.0, 1.0]))[:2]
     pivot = origin - np.array(ch.offset, np.float64)
-    found = covariance.search(cache.derived('costfield', pa, _cost_field), _wall_points(ch), A0, half,
+    found = covariance.search(cache.derived('costfield', pa, _cost_field), wall_points_of(ch), A0, half,
                               min(math.degrees(tol_a), PRIOR_SEARCH_AT_MOST[1]), pivot)
     if found is None:
         return None
@@ -407,8 +254,8 @@ def _near_prior(config: MergeConfig, pa: PairInput, ch: PairInput, src: np.ndarr
     inl = int(matching.inlier_mask(A, src, dst, config.ransac_threshold ** 2).sum()) if src.shape[0] else 0
     h = PairResult(A, matches=matches, inliers=inl, inlier_ratio=inl / float(max(1, matches)))
     h.agreement, h.overlap = verify.agreement(pa.levels, ch.levels, A, config.agreement_tolerance,
-                                              (_known(pa)[0], _known(ch)[0]),
-                                              _walls(pa, config.agreement_tolerance))
+                                              (known_of(pa)[0], known_of(ch)[0]),
+                                              walls_of(pa, config.agreement_tolerance))
     _judge(config, pa, ch, h)
     return h
 
@@ -428,7 +275,7 @@ def _align_features(config: MergeConfig, pa: PairInput, ch: PairInput,
                     seed: int) -> Tuple[PairResult, np.ndarray, np.ndarray]:
     """(the features' best hypothesis, the unique matches' (N, 2) child and parent cells)."""
     c = config
-    fa, fc = _at_one_scale(c, pa, ch)
+    fa, fc = at_one_scale(c, pa, ch)
     src, dst, unique = matching.match(fc, fa, c.match_candidates, c.match_ratio)
     r = PairResult(None, matches=int(unique.sum()))
     usrc, udst = src[unique], dst[unique]
@@ -438,8 +285,8 @@ def _align_features(config: MergeConfig, pa: PairInput, ch: PairInput,
     hyps = matching.ransac_rigid(src, dst, c.ransac_threshold, c.ransac_iterations, seed,
                             c.ransac_hypotheses, min_count=max(2, int(0.7 * c.min_inliers)))
     lv_a, lv_b = pa.levels, ch.levels
-    boxes = (_known(pa)[0], _known(ch)[0])
-    walls = _walls(pa, c.agreement_tolerance)
+    boxes = (known_of(pa)[0], known_of(ch)[0])
+    walls = walls_of(pa, c.agreement_tolerance)
 
     def verified(A: np.ndarray) -> Tuple[float, int]:
         # (agreement, overlap) on the crops, the parent's walls and both known boxes derived once
@@ -458,7 +305,7 @@ def _align_features(config: MergeConfig, pa: PairInput, ch: PairInput,
     best: Optional[PairResult] = None
     th2 = c.ransac_threshold ** 2
     tried = []
-    centre = _known(ch)[1]
+    centre = known_of(ch)[1]
     for rank, (ag, inl, A) in enumerate(scored):
         h = PairResult(A, matches=r.matches, inliers=inl)
         # the runner-up is polished only when it scores nearly as well as the best (it may be
@@ -487,19 +334,6 @@ def _align_features(config: MergeConfig, pa: PairInput, ch: PairInput,
         r.reason = 'RANSAC found no consistent transform'
         return r, usrc, udst
     return best, usrc, udst
-
-
-def _known_centre(levels: np.ndarray, box) -> Optional[np.ndarray]:
-    """(1, 2) centre (col, row) of a grid's known cells (all inside ``box``, the grid's
-    :func:`known_bbox`); None when it has none."""
-    if box is None:
-        return None
-    r0, r1, c0, c1 = box
-    # image moments of the known mask: a third of the cost of averaging its cells' indices
-    mo = cv2.moments((levels[r0:r1, c0:c1] > 0).view(np.uint8), True)
-    if mo['m00'] <= 0:
-        return None
-    return np.array([[mo['m10'] / mo['m00'] + c0, mo['m01'] / mo['m00'] + r0]])
 
 
 def _apart(A: np.ndarray, B: np.ndarray, centre: np.ndarray, resolution: float) -> Tuple[float, float]:

@@ -238,12 +238,13 @@ def add_priors(config: MergeConfig, best: Dict[str, Placement], names: Iterable[
 
 
 def hysteresis(config: MergeConfig, best: Dict[str, Placement], old: Dict[str, Placement],
-               edges: Links, ref: str, regraphed: bool) -> Tuple[Dict[str, Placement], List[str]]:
-    """(the placements to adopt, events): per robot the kept placement stays while its chain
-    holds, unless the new one is more reliable by ``replace_margin`` or the pose graph was
-    solved anew (it moves every robot it places)."""
+               edges: Links, ref: str,
+               regraphed: bool) -> Tuple[Dict[str, Placement], Dict[str, str]]:
+    """(the placements to adopt, events: per robot merged or improved, what to tell): per robot
+    the kept placement stays while its chain holds, unless the new one is more reliable by
+    ``replace_margin`` or the pose graph was solved anew (it moves every robot it places)."""
     new: Dict[str, Placement] = {}
-    events: List[str] = []
+    events: Dict[str, str] = {}
     for n, pl in best.items():
         prev = old.get(n)
         still_linked = prev is not None and (prev.via == PRIOR or chain_holds(prev, edges))
@@ -256,9 +257,9 @@ def hysteresis(config: MergeConfig, best: Dict[str, Placement], old: Dict[str, P
             continue
         x, y, yaw = xyyaw(pl.T)
         what = 'merged' if prev is None else 'transform improved'
-        events.append('%s %s via %s: x=%.3f m y=%.3f m yaw=%.2f deg, inlier ratio %.3f, '
-                      'agreement %.3f, inliers %d' % (n, what, pl.via, x, y, math.degrees(yaw),
-                                                      pl.inlier_ratio, pl.agreement, pl.inliers))
+        events[n] = ('%s %s via %s: x=%.3f m y=%.3f m yaw=%.2f deg, inlier ratio %.3f, agreement %.3f, '
+                     'inliers %d' % (n, what, pl.via, x, y, math.degrees(yaw), pl.inlier_ratio, pl.agreement,
+                                     pl.inliers))
     return new, events
 
 

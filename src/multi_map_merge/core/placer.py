@@ -3,15 +3,17 @@
 placements, how well each is pinned), refined against the other placed maps (:mod:`joint`),
 and, with ``bend_maps``, every placed map's correction field (:mod:`deform`).
 
-What it remembers between cycles (under its owner's lock, :class:`merger.MapMerger`'s one
-lock): the links the last pose-graph placement was made of, how the joint refinement last took
-each robot, and the bent maps' fields with what they were fitted to.
+What it holds (under its owner's lock, :class:`merger.MapMerger`'s one lock): the placements,
+the links the last pose-graph placement was made of, how the joint refinement last took each
+robot, and the bent maps' fields with what they were fitted to. It places from the pair
+ledger's kept links, and settles the team's reference once another robot is merged with it.
 """
 from __future__ import annotations
 
 import dataclasses
 import math
 import threading
+import time
 from typing import Callable, Dict, List, NamedTuple, Optional, Set, Tuple
 
 import numpy as np
@@ -19,9 +21,13 @@ import numpy as np
 from . import deform, joint, placement, schedule
 from .composite import lattice_for
 from .config import MergeConfig
+from .cycle import Cycle
+from .ledger import PairLedger
 from .links import Link
 from .placement import Placement
+from .priors import Priors
 from .robot_map import RobotMap
+from .team import Team, TeamListener
 from .transforms import within
 from .workers import PairWorkers
 
@@ -40,19 +46,68 @@ class _Refined(NamedTuple):
     known: int              # its map's known cells
 
 
-class Placer:
+class Placer(TeamListener):
     """Links to placements, and the bent maps' fields (see the module's docstring)."""
 
-    def __init__(self, config: MergeConfig, workers: PairWorkers, lock: threading.Lock):
+    def __init__(self, config: MergeConfig, workers: PairWorkers, lock: threading.Lock, team: Team,
+                 ledger: PairLedger):
         self.config = config
         self._workers = workers      # the worker pool the joint refinement runs in
         self._lock = lock            # the merger's
+        self._team = team            # its reference settles once another robot is placed
+        self._ledger = ledger        # the kept links, their drift covariances
+        # the placement of every merged robot (the reference at identity), per robot
+        self.placements: Dict[str, Placement] = {}
+        self.version = 0             # bumped whenever the placements change (the merger's state_version)
         self._graph_key = None       # the links the last pose-graph placement was made of
         # how the joint refinement last took each robot (_joint): (the reference, per robot its _Refined)
         self._refined: Optional[Tuple[str, Dict[str, _Refined]]] = None
         # bend_maps: per bent map, (the map's version it was fitted to, its correction field)
         self.fields: Dict[str, Tuple[int, deform.Field]] = {}
         self._fields_key = None      # the maps and placements the fields were fitted to (bend)
+
+    def forget(self, name: Optional[str] = None) -> None:
+        """(under the lock) Drop ``name``'s placement; None: every placement (the reference's
+        frame moved)."""
+        if name is None:
+            self.placements.clear()
+        else:
+            self.placements.pop(name, None)
+
+    def robot_forgotten(self, name: str, reference: bool) -> None:
+        self.version += name in self.placements
+        # every placement is a pose in the reference's frame, which moves with its map
+        self.forget(None if reference else name)
+
+    def reference_moved(self, old: str, new: str, has_map: bool) -> None:
+        # Every placement is a pose in the former reference's frame: only the new reference is
+        # placed (at identity) until the next cycle places the others under it (a cycle under
+        # way with the former one is discarded: Cycle.void)
+        self.forget()
+        self._graph_key = None
+        if old and has_map:
+            self.placements[new] = Placement(np.eye(3), 1.0, 1.0, 0, '', (new,), time.time())
+
+    def place(self, cycle: Cycle, priors: Callable[[], Priors], also: Set[str] = frozenset()) -> List[str]:
+        """(4) Every robot of the ``cycle`` placed from the verified links kept, per robot the
+        best placement seen (:meth:`_placed`; ``priors()``: the priors in use, ``also``: robots
+        the joint refinement takes if their map changed at all); the reference settled. Returns
+        the events (merged, improved); none when the cycle is void (:meth:`Cycle.void`)."""
+        with self._lock:
+            edges = dict(self._ledger.links)
+            old = dict(self.placements)
+        new, events = self._placed(cycle.maps, cycle.ref, edges, old, priors, self._ledger.drift_covs, set(also))
+        with self._lock:
+            if cycle.void():
+                return []            # the reference restarted or changed meanwhile: every placement is void
+            # robots forgotten since the cycle began stay unplaced until estimated again
+            new = {n: p for n, p in new.items() if not cycle.stale(n)}
+            now = self.placements
+            if set(new) != set(now) or any(new[n] is not now.get(n) for n in new):
+                self.version += 1
+            self.placements = new
+            self._team.settle(list(new))   # fixed once another robot is merged with it
+        return [e for n, e in events.items() if n in new]
 
     def forget_graph(self) -> None:
         """(under the lock) The reference changed: the pose graph is solved again."""
@@ -63,12 +118,12 @@ class Placer:
         self.fields.clear()
         self._fields_key = None
 
-    def place(self, maps: Dict[str, RobotMap], ref: str, edges: Dict[Tuple[str, str], Link],
+    def _placed(self, maps: Dict[str, RobotMap], ref: str, edges: Dict[Tuple[str, str], Link],
               old: Dict[str, Placement], priors: Callable[[], Dict[str, List[float]]],
-              drift_covs: Dict[Tuple[str, str], tuple], also: Set[str]) -> Tuple[Dict[str, Placement], List[str]]:
+              drift_covs: Dict[Tuple[str, str], tuple], also: Set[str]) -> Tuple[Dict[str, Placement], Dict[str, str]]:
         """Every robot of ``maps`` placed from the verified links ``edges``, the kept placements
-        ``old`` standing unless the new one is better; (the new placements, the events: merged,
-        improved). ``priors()``: the priors in use; ``drift_covs``: the links' drift covariances
+        ``old`` standing unless the new one is better; (the new placements, the events: per robot
+        merged or improved, what to tell). ``priors()``: the priors in use; ``drift_covs``: the links' drift covariances
         (:func:`placement.pin`); ``also``: robots the joint refinement takes if their map changed
         at all (:meth:`_joint`)."""
         c = self.config
@@ -101,11 +156,13 @@ class Placer:
         placement.pin(c, new, edges, ref, graph_key is not None, drift_covs)
         return new, events
 
-    def refinement_pending(self, maps: Dict[str, RobotMap], ref: str, placed: Set[str]) -> List[str]:
-        """The placed robots whose map changed since the joint refinement last took them
-        (:meth:`_joint`), those whose known cells grew most since first."""
+    def refinement_pending(self, cycle: Cycle) -> List[str]:
+        """The placed robots of the ``cycle`` whose map changed since the joint refinement last
+        took them (:meth:`_joint`), those whose known cells grew most since first."""
+        maps, ref = cycle.maps, cycle.ref
         with self._lock:
             last = self._refined
+            placed = set(self.placements)
         if not self.config.joint_placement or last is None or last[0] != ref:
             return []
         grown = [(-schedule.facts_of(maps[n], self.config).known / float(max(1, r.known)), n)
@@ -140,9 +197,11 @@ class Placer:
         known = {n: schedule.facts_of(maps[n], self.config).known for n in robots}
         with self._lock:
             last = self._refined
-        moving = None                  # every robot, from its anchor
+        # the whole team refined from its anchors (several rounds), or only the robots moving
+        whole = last is None or last[0] != ref or not set(last[1]) <= set(robots)
+        moving: Set[str] = set(robots)
         current = {n: new[n].T for n in robots}
-        if last is not None and last[0] == ref and set(last[1]) <= set(robots):
+        if not whole:
             # the robots whose map, or whose anchor beyond SAME_POSE, changed since they were
             # refined (a robot new among them too); the reference's neighbours for the reference.
             # The others keep the pose they were refined to (a placement adopted anew with an
@@ -154,14 +213,13 @@ class Placer:
             current.update({n: last[1][n].pose for n in robots if n not in moving})
             if ref in moving:
                 moving.update(joint.neighbours(robots, current, ref))
-            if not moving:
-                moving = set()
-        poses = joint.refine_placements(robots, anchors, ref, lattice_for(maps[ref].grid), c.agreement_tolerance,
-                                        current, moving, self._workers.runner(maps)) if moving != set() else current
+        poses = current
+        if whole or moving:
+            poses = joint.refine_placements(robots, anchors, ref, lattice_for(maps[ref].grid), c.agreement_tolerance,
+                                            current, None if whole else moving, self._workers.runner(maps))
         with self._lock:
-            kept = {} if moving is None or last is None else dict(last[1])
-            kept.update({n: _Refined(maps[n].key, anchors[n], poses[n], known[n])
-                         for n in robots if moving is None or n in moving})
+            kept = {} if whole else dict(last[1])
+            kept.update({n: _Refined(maps[n].key, anchors[n], poses[n], known[n]) for n in moving})
             self._refined = (ref, {n: kept[n] for n in robots if n in kept})
         out = dict(new)
         for n, T in poses.items():
@@ -177,14 +235,16 @@ class Placer:
         return m.memo('joint', lambda: joint.Robot.of(g, g.levels(c.free_thresh, c.occupied_thresh),
                                                       g.known_values(c.free_thresh, c.occupied_thresh)))
 
-    def bend(self, maps: Dict[str, RobotMap], ref: str, placements: Dict[str, Placement]) -> None:
-        """Fit the correction field of every placed map (:mod:`deform`) when ``bend_maps`` is
-        on and a map or a placement changed since they were fitted; a map whose field is not
-        fitted (it pairs with no other) is composited rigidly."""
+    def bend(self, cycle: Cycle) -> None:
+        """(5) past rigid: fit the correction field of every placed map of the ``cycle``
+        (:mod:`deform`) when ``bend_maps`` is on and a map or a placement changed since they were
+        fitted; a map whose field is not fitted (it pairs with no other) is composited rigidly."""
         c = self.config
         if not c.bend_maps:
             return
-        placed = {n: p.T for n, p in placements.items() if n in maps}
+        maps, ref = cycle.maps, cycle.ref
+        with self._lock:
+            placed = {n: p.T for n, p in self.placements.items() if n in maps}
         key = (ref, tuple((n, maps[n].key, T.tobytes()) for n, T in sorted(placed.items())))
         with self._lock:
             if key == self._fields_key:

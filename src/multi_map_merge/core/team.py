@@ -1,14 +1,15 @@
 """The team: every robot's latest map, its versions and restarts, the last error of its input, and
 which robot is the reference (the merged frame is its map frame).
 
-Not thread-safe: its owner (:class:`merger.MapMerger`) calls it under its one lock, and
-carries out what a change of the reference means for the placements.
+Not thread-safe: its owner (:class:`merger.MapMerger`) calls it under its one lock. What a
+robot forgotten (its map restarted, or it left) or a new reference means for the merger's other
+parts, each carries out itself: the team tells its :attr:`Team.listeners` (:class:`TeamListener`).
 """
 from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Dict, Optional, Sequence, Tuple
+from typing import Dict, List, Mapping, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -67,10 +68,24 @@ class ReferenceChoice:
                 % (ref, others, ref))
 
 
+class TeamListener:
+    """A part of the merger told of the team's changes (under the merger's lock)."""
+
+    def robot_forgotten(self, name: str, reference: bool) -> None:
+        """Robot ``name`` was forgotten (its map restarted, or it left); ``reference``: it is the
+        reference, whose map frame is the merged frame."""
+
+    def reference_moved(self, old: str, new: str, has_map: bool) -> None:
+        """The reference robot is ``new`` now (``old`` before, '' for none); ``has_map``: ``new``
+        has a map."""
+
+
 class Team:
     """The robots' maps and the reference robot (see the module's docstring)."""
 
-    def __init__(self, reference_robot: str = ''):
+    def __init__(self, reference_robot: str = '', robots: Sequence[str] = ()):
+        """``reference_robot``: fixed (the parameter); else, with ``robots`` listed, the first of
+        them by name; else the first by name among the robots with a map (:meth:`settle`)."""
         self.maps: Dict[str, RobotMap] = {}
         self.errors: Dict[str, str] = {}      # per robot: why its last input was refused
         self.reference = reference_robot
@@ -78,6 +93,31 @@ class Team:
         self.why = REF_PARAMETER if reference_robot else REF_FIRST_BY_NAME
         self._version = 0                     # of the last map taken, across the team
         self._lives: Dict[str, int] = {}      # per robot: how often it was forgotten
+        self.listeners: List[TeamListener] = []
+        if robots:
+            self.propose(sorted(r.strip('/') for r in robots)[0])
+
+    def update(self, name: str, grid: Grid, placed: Mapping[str, object]) -> Tuple[bool, Optional[str]]:
+        """``grid`` as robot ``name``'s map: (whether it is a new version, not its map republished
+        unchanged; what to tell when it is a new map, not its map grown: :meth:`restart`, the
+        robot forgotten first). A robot new to the team settles the reference (:meth:`settle`,
+        ``placed``: the robots placed)."""
+        if self.republished(name, grid):
+            return False, None
+        new = name not in self.maps
+        event = self.restart(name, grid)
+        if event:
+            self.forget(name)
+        self.take(name, grid)
+        if new:
+            self.settle(list(placed))
+        return True, event
+
+    def remove(self, name: str, placed: Mapping[str, object]) -> None:
+        """Robot ``name`` leaves the team: forgotten, and the reference settled again."""
+        self.maps.pop(name, None)
+        self.forget(name)
+        self.settle(list(placed))
 
     def republished(self, name: str, grid: Grid) -> bool:
         """Whether ``grid`` is the robot's map as it is (republished unchanged): then only its
@@ -107,25 +147,33 @@ class Team:
 
     def forget(self, name: str) -> None:
         """The robot is forgotten (its map restarted, or it left): what a cycle under way derives
-        from its former maps must not come back (:meth:`from_former_life`)."""
+        from its former maps must not come back (:meth:`from_former_life`); the listeners are told."""
         self._lives[name] = self._lives.get(name, 0) + 1
+        for part in self.listeners:
+            part.robot_forgotten(name, name == self.reference)
 
     def from_former_life(self, m: RobotMap) -> bool:
         """True when ``m`` (from a cycle's snapshot) is a map the robot had before it was
         forgotten (its map restarted, or it was removed) while the cycle ran."""
         return self._lives.get(m.name, 0) != m.life
 
-    def propose(self) -> bool:
-        """Whether a proposed reference is taken: only while none is fixed (it is fixed then)."""
-        if self.fixed:
-            return False
-        self.fixed, self.why = True, REF_PROPOSED
-        return True
+    def propose(self, name: str) -> str:
+        """``name`` as the reference for good, unless one is fixed already. The reference."""
+        if not self.fixed:
+            self.fixed, self.why = True, REF_PROPOSED
+            self._set_reference(name)
+        return self.reference
 
-    def settle(self, placed: Sequence[str]) -> str:
+    def settle(self, placed: Sequence[str]) -> None:
         """The reference now that the robots ``placed`` are (:func:`decide_reference`)."""
         ref, self.fixed = decide_reference(self.reference, self.fixed, list(self.maps), placed)
-        return ref
+        self._set_reference(ref)
+
+    def _set_reference(self, name: str) -> None:
+        if name != self.reference:
+            old, self.reference = self.reference, name
+            for part in self.listeners:
+                part.reference_moved(old, name, name in self.maps)
 
     def choice(self) -> ReferenceChoice:
         return ReferenceChoice(self.reference, self.fixed, self.why, tuple(sorted(self.maps)))

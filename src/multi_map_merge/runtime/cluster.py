@@ -1,10 +1,10 @@
 """A Dask cluster as the pool of pair jobs (``~dask_scheduler``): what one machine cannot hold.
 
 :func:`pool` connects a ``distributed.Client`` to the scheduler once per process, lazily (the
-first cycle that asks for it), and returns a :class:`ClusterPool`: an executor whose ``submit``
-and ``map`` give ``concurrent.futures`` futures, as the local process pool's do, so the pair
-jobs are sent to either the same way. ``distributed`` is imported only here, only then: it is an
-optional dependency.
+first cycle that asks for it), and returns a :class:`ClusterPool`: the client's own executor
+(``Client.get_executor``), whose ``submit`` gives ``concurrent.futures`` futures, as the local
+process pool's does, so the pair jobs are sent to either the same way. ``distributed`` is
+imported only here, only then: it is an optional dependency.
 
 A cluster fails fast rather than hang. The scheduler reschedules a dead worker's tasks on the
 others (invisible here), but with every worker gone it would wait for ever, and with the
@@ -123,7 +123,7 @@ def _quiet_distributed() -> None:
 
 
 class ClusterPool:
-    """A ``distributed.Client`` as a ``concurrent.futures``-like executor (``submit``, ``map``)
+    """A ``distributed.Client``'s own ``concurrent.futures`` executor (``Client.get_executor``)
     whose futures fail with :class:`ClusterLost` when the cluster does (see the module)."""
 
     def __init__(self, address: str):
@@ -143,8 +143,11 @@ class ClusterPool:
             self.client = distributed.Client(address, timeout=CONNECT_TIMEOUT_S, set_as_default=False)
         except Exception as e:   # OSError, asyncio's or tornado's TimeoutError, a bad address
             raise ClusterLost('cannot connect: %s' % _reason(e)) from None
+        self._executor = self.client.get_executor(pure=False)
         self._lock = threading.Lock()
-        self._pending = {}      # dask future's key -> (dask future, concurrent future)
+        # the futures handed out and not settled: each relays its executor future's outcome,
+        # unless the watchdog failed it first (an executor future waits for ever with no worker)
+        self._pending = set()
         self._watch = None
         self._failed: Optional[ClusterLost] = None
         self.finished = 0       # tasks the cluster finished
@@ -159,55 +162,46 @@ class ClusterPool:
             out.set_exception(self._failed)
             return out
         try:
-            f = self.client.submit(run_on_worker, fn, *args, pure=False)
+            task = self._executor.submit(run_on_worker, fn, *args)
         except Exception as e:
             out.set_exception(ClusterLost('cannot submit: %s' % _reason(e)))
             return out
         with self._lock:
-            self._pending[f.key] = (f, out)
+            self._pending.add(out)
             if self._watch is None:
                 self._watch = threading.Thread(target=self._watchdog, name='dask-watch', daemon=True)
                 self._watch.start()
-        f.add_done_callback(self._done)
+        task.add_done_callback(lambda task: self._relay(task, out))
         return out
 
-    def map(self, fn, *iterables) -> list:
-        futures = [self.submit(fn, *args) for args in zip(*iterables)]
-        return [f.result() for f in futures]
-
-    def _settle(self, key, result=None, error: Optional[BaseException] = None) -> None:
-        with self._lock:
-            entry = self._pending.pop(key, None)
-            if entry is None or entry[1].done():
-                return
+    def _relay(self, task: cf.Future, out: cf.Future) -> None:
+        """An executor future's outcome onto the future handed out for it: a cancelled task (the
+        scheduler lost), a killed worker's or a missing import's as :class:`ClusterLost`."""
+        if task.cancelled():
+            result, error = None, ClusterLost('tasks cancelled: the scheduler is lost')
+        else:
+            result, error = None, task.exception()
             if error is None:
-                entry[1].set_result(result)
+                result = task.result()
+            elif type(error).__name__ == 'KilledWorker' or isinstance(error, ImportError):
+                error = ClusterLost(_reason(error))
+        with self._lock:
+            if out not in self._pending:
+                return               # failed by the watchdog already
+            self._pending.discard(out)
+            if error is None:
+                out.set_result(result)
                 self.finished += 1
             else:
-                entry[1].set_exception(error)
-
-    def _done(self, f) -> None:
-        """A task's end (in the client's callback thread): its future settled."""
-        try:
-            if f.status == 'finished':
-                self._settle(f.key, f.result())
-            elif f.status == 'cancelled':
-                self._settle(f.key, error=ClusterLost('tasks cancelled: the scheduler is lost'))
-            else:
-                e = f.exception()
-                if type(e).__name__ == 'KilledWorker' or isinstance(e, ImportError):
-                    e = ClusterLost(_reason(e))
-                self._settle(f.key, error=e)
-        except Exception as e:   # the result could not be fetched: the connection is gone
-            self._settle(f.key, error=ClusterLost(_reason(e)))
+                out.set_exception(error)
 
     def _fail_all(self, why: str) -> None:
         with self._lock:
             if self._failed is None:
                 self._failed = ClusterLost(why)
-            entries = list(self._pending.values())
+            entries = list(self._pending)
             self._pending.clear()
-            for _, out in entries:
+            for out in entries:
                 if not out.done():
                     out.set_exception(self._failed)
 

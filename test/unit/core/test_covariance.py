@@ -123,7 +123,7 @@ def test_kept_links_carry_their_covariance(intel):
     assert e['sigma_position'] == pytest.approx(cv.position_sigma(C))
     m2 = MapMerger(MergeConfig(workers=1))
     assert m2.restore_state(m.export_state()) == 1
-    assert np.allclose(m2._ledger.restored[('a', 'b')].cov, C)
+    assert np.allclose(m2._linker.ledger.restored[('a', 'b')].cov, C)
 
 
 def _input(name, levels):

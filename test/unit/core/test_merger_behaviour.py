@@ -6,8 +6,9 @@ from conftest import MAZE, merged, pose_error, shared_file, truth
 
 from multi_map_merge.core.config import MergeConfig
 from multi_map_merge.core.grid import Grid, known_bbox
+from multi_map_merge.core.linker import PLANNED
 from multi_map_merge.core.mapio import load_map
-from multi_map_merge.core.merger import PLANNED, MapMerger
+from multi_map_merge.core.merger import MapMerger
 from multi_map_merge.core.schedule import SLOW_EVERY
 from multi_map_merge.core.state import load_state, save_state
 from multi_map_merge.lab.pieces import cut_piece
@@ -183,7 +184,7 @@ def test_early_look_alike_is_replaced_despite_its_higher_inlier_ratio(ps, pose_g
     wrong = truth(ps[0][1], ps[1][1]) @ se2(1.2, 0.0, 0.0)   # 1.2 m along, as on a corridor
     # The look-alike is planted as the kept link: no public way leads there on these maps (a
     # saved link is verified again before use, and this one agrees 0.24 on the grids).
-    m._ledger.links[('a', 'b')] = Link('a', 'b', wrong, 1.0, 0.99, 40, 40, 0.0, 1000)
+    m._linker.ledger.links[('a', 'b')] = Link('a', 'b', wrong, 1.0, 0.99, 40, 40, 0.0, 1000)
     m.estimate()                        # ... then the look-alike is kept (maps unchanged) ...
     assert pose_error(m.placements()['b'].T, wrong)[0] < 0.35
     for k in range(2):                  # new map versions (the same levels): the rule alone acts
@@ -274,16 +275,17 @@ def test_a_map_restarted_during_an_estimation_cycle_is_not_placed_by_it(intel):
     for n, (g, _) in zip('ab', ps):
         m.update_map(n, g)
     # one cycle, step by step as estimate() runs it, with the restart of b in the middle
-    ref, maps = m._snapshot()
-    todo = m._plan(maps, ref).todo
+    cycle = m._cycle()
+    maps = cycle.maps
+    todo = m._linker.plan(cycle).todo
     estimates = m._workers.align_pairs(maps, todo)
     assert any(r.accepted for r in estimates)       # the former map does link
     g = ps[1][0]
     event = m.update_map('b', Grid(g.data[:60, :60].copy(), g.resolution, (0.0, 0.0, 0.0)))
     assert event and 'restarted' in event
     for (a, b), r in zip(todo, estimates):
-        m._keep(maps[a], maps[b], r, PLANNED)
-    events = m._place(maps, ref)
+        m._linker.keep(cycle, a, b, r, PLANNED)
+    events = m._placer.place(cycle, m.priors)
     assert 'b' not in m.placements() and not m.links(), (m.placements(), events)
     assert not any(e.startswith('b ') for e in events)
     # and the next cycle estimates the restarted map itself
@@ -390,10 +392,10 @@ def test_a_cycle_begun_under_a_former_reference_places_nothing(ps):
     m = MapMerger(MergeConfig())
     m.update_map('b', ps[1][0])
     m.update_map('c', ps[2][0])
-    ref, maps = m._snapshot()
-    assert ref == 'b'
+    cycle = m._cycle()
+    assert cycle.ref == 'b'
     m.update_map('a', ps[0][0])                       # meanwhile
-    assert m._place(maps, ref) == [] and set(m.placements()) == {'a'}
+    assert m._placer.place(cycle, m.priors) == [] and set(m.placements()) == {'a'}
     assert not m.reference_choice().fixed
 
 

@@ -133,7 +133,7 @@ def test_a_kept_link_is_tracked_on_new_maps_and_refined(ps):
     # the kept link nudged off by 10 cm and a degree: a new version of b's map is tracked back
     key = ('a', 'b')
     with m._lock:
-        links = m._ledger.links
+        links = m._linker.ledger.links
         links[key] = dataclasses.replace(links[key], T=links[key].T @ se2(0.1, 0.0, np.radians(1.0)))
     m.update_map('b', another_version(ps[1][0]))
     m.estimate()
@@ -150,7 +150,7 @@ def test_a_link_that_fails_its_tracking_is_aligned_again_from_features(ps):
     m.estimate()
     key = ('a', 'b')
     with m._lock:    # a kept link 2 m off: its tracking cannot verify it
-        links = m._ledger.links
+        links = m._linker.ledger.links
         links[key] = dataclasses.replace(links[key], T=links[key].T @ se2(2.0, 0.0, 0.0))
     m.update_map('b', another_version(ps[1][0]))
     m.estimate()
