@@ -165,3 +165,30 @@ $(RUFF):
 	@/usr/bin/python3 -m venv $(WS)/ruff-$(RUFF_VERSION) && \
 	  $(WS)/ruff-$(RUFF_VERSION)/bin/pip install -q ruff==$(RUFF_VERSION) \
 	  || { rm -rf $(WS)/ruff-$(RUFF_VERSION); exit 1; }
+
+# ROS 2 Jazzy (ros2/, README's "ROS 2 (Jazzy)"): a venv of PyPI's ROS 2 Jazzy wheels beside the
+# workspace, WITHOUT Debian's site packages (its ROS 1 messages share the ROS 2 ones' names), with
+# tf2_msgs and map_msgs (which PyPI lacks) generated from ros2/interfaces by the rosidl wheels
+# (ros2/tools/make_venv.sh says how). cmake, g++ and python3-dev build those; the stamp names the
+# script and the interfaces, so a change to either makes the venv again (about 1-2 min).
+ROS2_PKGS  := python3-venv python3-dev cmake g++ make
+ROS2_VENV  := $(WS)/venv-jazzy
+ROS2_STAMP := $(ROS2_VENV)/.ok-$(shell cat ros2/tools/make_venv.sh ros2/interfaces/*/msg/*.msg ros2/interfaces/*/CMakeLists.txt 2>/dev/null | md5sum | cut -c1-8)
+# ROS_DOMAIN_ID: the DDS domain the ROS 2 tests use (two clones on one machine: two domains);
+# ROS_LOCALHOST_ONLY-like: the tests' participants talk over the loopback only
+ROS2_DOMAIN ?= 0
+ROS2_ENV := env -u PYTHONPATH -u ROS_PACKAGE_PATH -u ROS_DISTRO -u ROS_ROOT -u CMAKE_PREFIX_PATH \
+  -u ROS_MASTER_URI -u AMENT_PREFIX_PATH ROS_DOMAIN_ID=$(ROS2_DOMAIN) ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST \
+  RMW_IMPLEMENTATION=rmw_fastrtps_cpp PATH=$(ROS2_VENV)/bin:$(PATH)
+
+.PHONY: ros2-env test-ros2
+ros2-env: $(ROS2_STAMP)
+$(ROS2_STAMP):
+	@mkdir -p $(WS)
+	$(call apt_install,$(ROS2_PKGS))
+	@t0=$$(date +%s); ros2/tools/make_venv.sh $(ROS2_VENV) $(CURDIR) \
+	  && touch $@ && echo "ros2-env: $(ROS2_VENV) made in $$(( $$(date +%s) - t0 )) s, $$(du -sh $(ROS2_VENV) | cut -f1)"
+
+# The ROS 2 node's tests (ros2/test): a real graph of rclpy nodes in the venv of ros2-env.
+test-ros2: ros2-env
+	@cd $(CURDIR) && $(ROS2_ENV) $(ROS2_VENV)/bin/python -m pytest -q -p no:cacheprovider ros2/test
