@@ -156,7 +156,7 @@ RUFF_VERSION := 0.6.9
 LINT_PKGS    := python3-venv
 RUFF         := $(WS)/ruff-$(RUFF_VERSION)/bin/ruff
 lint: $(RUFF)
-	@$(RUFF) check --no-cache src scripts test bench tools
+	@$(RUFF) check --no-cache src scripts test bench tools ros2
 
 $(RUFF):
 	@mkdir -p $(WS)

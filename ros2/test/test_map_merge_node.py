@@ -13,12 +13,19 @@ import time
 
 import numpy as np
 import pytest
-
 from conftest import Graph, MergerProcess, wait_until
+from nav_msgs.msg import OccupancyGrid
+from nav_msgs.srv import GetMap
+from rcl_interfaces.srv import DescribeParameters, SetParameters
+from rclpy.parameter import Parameter
+from std_srvs.srv import Trigger
+
 from multi_map_merge.core.grid import Grid
 from multi_map_merge.core.transforms import pose_distance
 from multi_map_merge.lab.home import home_grid
 from multi_map_merge.lab.pieces import cut_piece, split_rects
+from multi_map_merge_ros2.convert import grid_to_msg
+from multi_map_merge_ros2.outputs import LATCHED
 
 # where each robot's map frame lies in the home (x m, y m, yaw rad); tb3_0 (the reference, first
 # by name) at the home's origin, the others apart and turned
@@ -85,9 +92,6 @@ def test_1_three_robots_merged_with_their_tf(graph, home_pieces):
     known = int(np.count_nonzero(merged.data >= 0))
     assert known > max(int(np.count_nonzero(p.data >= 0)) for p, _ in home_pieces[:3])
     # transient-local: a subscriber that comes now still gets it
-    from nav_msgs.msg import OccupancyGrid
-
-    from multi_map_merge_ros2.outputs import LATCHED
     late = []
     sub = g.node.create_subscription(OccupancyGrid, '/map', late.append, LATCHED)
     assert wait_until(lambda: late, 10.0), 'a late subscriber of /map got nothing (not transient-local?)'
@@ -106,7 +110,6 @@ def test_2_a_robot_that_joins_late_is_placed(graph, home_pieces):
 def test_3_a_malformed_map_is_refused_with_one_line_and_the_node_lives_on(graph, home_pieces):
     g, merger = graph
     good = home_pieces[1][0]
-    from multi_map_merge_ros2.convert import grid_to_msg
     msg = grid_to_msg(good, g.node.get_clock().now().to_msg())
     msg.info.width += 7   # cells no longer width x height
     for _ in range(3):
@@ -155,11 +158,6 @@ def test_4_a_map_that_restarts_is_forgotten_and_placed_again(graph, home_pieces)
 
 def test_5_parameters_at_run_time_and_services(graph):
     g, merger = graph
-    from nav_msgs.srv import GetMap
-    from rcl_interfaces.srv import DescribeParameters, SetParameters
-    from rclpy.parameter import Parameter
-    from std_srvs.srv import Trigger
-
     def set_param(name, value):
         req = SetParameters.Request(parameters=[Parameter(name, value=value).to_parameter_msg()])
         return call(g, SetParameters, '/map_merge/set_parameters', req).results[0]
