@@ -181,7 +181,7 @@ ROS2_ENV := env -u PYTHONPATH -u ROS_PACKAGE_PATH -u ROS_DISTRO -u ROS_ROOT -u C
   -u ROS_MASTER_URI -u AMENT_PREFIX_PATH ROS_DOMAIN_ID=$(ROS2_DOMAIN) ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST \
   RMW_IMPLEMENTATION=rmw_fastrtps_cpp PATH=$(ROS2_VENV)/bin:$(PATH)
 
-.PHONY: ros2-env test-ros2
+.PHONY: ros2-env test-ros2 ros2-venv-path
 ros2-env: $(ROS2_STAMP)
 $(ROS2_STAMP):
 	@mkdir -p $(WS)
@@ -192,3 +192,7 @@ $(ROS2_STAMP):
 # The ROS 2 node's tests (ros2/test): a real graph of rclpy nodes in the venv of ros2-env.
 test-ros2: ros2-env
 	@cd $(CURDIR) && $(ROS2_ENV) $(ROS2_VENV)/bin/python -m pytest -q -p no:cacheprovider ros2/test
+
+# The ROS 2 venv's folder, for the README's ROS 2 commands in a shell: V=$$(make -s ros2-venv-path)
+ros2-venv-path:
+	@echo $(ROS2_VENV)

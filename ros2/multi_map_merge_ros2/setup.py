@@ -10,7 +10,8 @@ PACKAGE = 'multi_map_merge_ros2'
 HERE = os.path.dirname(os.path.abspath(__file__))
 # the core, two folders up (the repository's src/); relative, as setuptools wants package_dir
 CORE = os.path.relpath(os.path.join(HERE, '..', '..', 'src', 'multi_map_merge'), HERE)
-CORE_PACKAGES = ['multi_map_merge', 'multi_map_merge.core', 'multi_map_merge.runtime', 'multi_map_merge.ros']
+CORE_PACKAGES = ['multi_map_merge', 'multi_map_merge.core', 'multi_map_merge.runtime', 'multi_map_merge.ros',
+                 'multi_map_merge.lab']
 
 setup(
     name=PACKAGE,
@@ -30,5 +31,6 @@ setup(
     description="multi_map_merge's ROS 2 node: merged map and every robot's TF, no initial poses needed",
     license='BSD-3-Clause',
     tests_require=['pytest'],
-    entry_points={'console_scripts': ['map_merge_node = multi_map_merge_ros2.map_merge_node:main']},
+    entry_points={'console_scripts': ['map_merge_node = multi_map_merge_ros2.map_merge_node:main',
+                                      'home_team = multi_map_merge_ros2.home_team:main']},
 )
