@@ -94,7 +94,8 @@ def main(argv: Optional[List[str]] = None) -> int:
         errs = errors(dict(received), pieces)
         placed = all(e is not None and e[0] < MAX_DISTANCE and e[1] < MAX_ANGLE for e in errs.values())
     for robot, e in errors(dict(received), pieces).items():
-        print('%s: %s' % (robot, 'no TF' if e is None else '%.3f m, %.2f deg from the truth' % (e[0], math.degrees(e[1]))))
+        told = 'no TF' if e is None else '%.3f m, %.2f deg from the truth' % (e[0], math.degrees(e[1]))
+        print('%s: %s' % (robot, told))
     print('home_team: %s' % ('every robot placed within %.2f m and 1 deg' % MAX_DISTANCE if placed
                              else 'not every robot placed within %.0f s' % args.timeout), flush=True)
     executor.shutdown()   # (the spinning thread ends before the node goes: rclpy aborts otherwise)

@@ -103,11 +103,30 @@ def resolve_overrides(overrides: Mapping[str, Any]) -> Resolved:
     use_sim_time, left out), as the ROS 1 node resolves its private namespace (names shown
     without ROS 1's ``~``)."""
     given = {n: given_value(n, v) for n, v in overrides.items()}
+    given.update(_dotted_mappings(given))
     res = P.resolve(given, prefix='')
     config = MergeConfig(**{p.name: res.values[p.name] for p in P.config_parameters()})
     library = {p.name: res.values[p.name] for p in P.parameters() if p.library}
     library_given = {n: given[n] for n in library if n in given}
     return Resolved(config, res.errors, res.warnings, res.notes, library, library_given)
+
+
+def _dotted_mappings(given: Dict[str, Any]) -> Dict[str, Any]:
+    """A mapping given in a params file (``initial_poses: {tb3_1: [1.0, 2.0, 0.5]}``), which ROS 2
+    flattens into ``initial_poses.tb3_1``, gathered back (and its dotted names taken out of
+    ``given``); a nested robot namespace's dots read as slashes (``initial_poses.robots.r1``:
+    ``robots/r1``). Where the YAML text is given too, the dotted entries are added to it."""
+    out: Dict[str, Any] = {}
+    for name in YAML_TEXT:
+        dotted = sorted(k for k in given if k.startswith(name + '.'))
+        if not dotted:
+            continue
+        base = given.get(name)
+        mapping = dict(base) if isinstance(base, dict) else {}
+        for k in dotted:
+            mapping[k[len(name) + 1:].replace('.', '/')] = given.pop(k)
+        out[name] = mapping
+    return out
 
 
 def check_runtime(name: str, value: Any) -> Optional[str]:
