@@ -174,9 +174,10 @@ $(RUFF):
 ROS2_PKGS  := python3-venv python3-dev cmake g++ make
 ROS2_VENV  := $(WS)/venv-jazzy
 ROS2_STAMP := $(ROS2_VENV)/.ok-$(shell cat ros2/tools/make_venv.sh ros2/interfaces/*/msg/*.msg ros2/interfaces/*/CMakeLists.txt 2>/dev/null | md5sum | cut -c1-8)
-# ROS_DOMAIN_ID: the DDS domain the ROS 2 tests use (two clones on one machine: two domains);
-# ROS_LOCALHOST_ONLY-like: the tests' participants talk over the loopback only
-ROS2_DOMAIN ?= 0
+# ROS2_DOMAIN: the ROS_DOMAIN_ID the ROS 2 tests use, by default one of 100-199 named by the
+# checkout's path (two clones on one machine: two domains, as ROS_PORT for ROS 1); the tests'
+# participants discover each other on the loopback only (ROS_AUTOMATIC_DISCOVERY_RANGE)
+ROS2_DOMAIN ?= $(shell echo $$(( 0x$$(echo '$(CURDIR)' | md5sum | cut -c1-6) % 100 + 100 )))
 ROS2_ENV := env -u PYTHONPATH -u ROS_PACKAGE_PATH -u ROS_DISTRO -u ROS_ROOT -u CMAKE_PREFIX_PATH \
   -u ROS_MASTER_URI -u AMENT_PREFIX_PATH ROS_DOMAIN_ID=$(ROS2_DOMAIN) ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST \
   RMW_IMPLEMENTATION=rmw_fastrtps_cpp PATH=$(ROS2_VENV)/bin:$(PATH)
