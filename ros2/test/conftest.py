@@ -53,8 +53,9 @@ class Graph:
         self.node = Node('map_merge_test')
         self.pubs: Dict[str, object] = {}
         self.maps: List[tuple] = []          # (wall time, OccupancyGrid) of the merged map
-        self.tf: Dict[str, tuple] = {}       # child frame -> (wall time, parent, 3x3 pose)
+        self.tf: Dict[str, tuple] = {}       # child frame -> (wall time, parent, 3x3 pose, stamp s)
         self.diagnostics: List[tuple] = []   # (wall time, DiagnosticArray)
+        self.tf_messages = 0                 # /tf messages received
         self._lock = threading.Lock()
         self.node.create_subscription(OccupancyGrid, '/map', self._on_map, LATCHED)
         self.node.create_subscription(TFMessage, '/tf', self._on_tf, 100)
@@ -70,10 +71,12 @@ class Graph:
 
     def _on_tf(self, msg):
         with self._lock:
+            self.tf_messages += 1
             for t in msg.transforms:
                 tr = t.transform
                 self.tf[t.child_frame_id] = (time.time(), t.header.frame_id,
-                                             se2(tr.translation.x, tr.translation.y, quaternion_yaw(tr.rotation)))
+                                             se2(tr.translation.x, tr.translation.y, quaternion_yaw(tr.rotation)),
+                                             t.header.stamp.sec + t.header.stamp.nanosec * 1e-9)
 
     def _on_diagnostics(self, msg):
         with self._lock:
@@ -96,6 +99,12 @@ class Graph:
         with self._lock:
             got = self.tf.get(child)
         return got[2] if got and got[0] > since and got[1] == 'map' else None
+
+    def stamp(self, child: str, since: float = 0.0) -> Optional[float]:
+        """The stamp (seconds) of the latest TF of ``child`` received after ``since``."""
+        with self._lock:
+            got = self.tf.get(child)
+        return got[3] if got and got[0] > since else None
 
     def latest_map(self, since: float = 0.0) -> Optional[Grid]:
         with self._lock:

@@ -13,11 +13,13 @@ import time
 
 import numpy as np
 import pytest
+from builtin_interfaces.msg import Time
 from conftest import Graph, MergerProcess, wait_until
 from nav_msgs.msg import OccupancyGrid
 from nav_msgs.srv import GetMap
 from rcl_interfaces.srv import DescribeParameters, SetParameters
 from rclpy.parameter import Parameter
+from rosgraph_msgs.msg import Clock
 from std_srvs.srv import Trigger
 
 from multi_map_merge.core.grid import Grid
@@ -162,6 +164,15 @@ def test_5_parameters_at_run_time_and_services(graph):
         req = SetParameters.Request(parameters=[Parameter(name, value=value).to_parameter_msg()])
         return call(g, SetParameters, '/map_merge/set_parameters', req).results[0]
 
+    def tf_rate_seen(seconds=3.0):
+        n0 = g.tf_messages
+        time.sleep(seconds)
+        return (g.tf_messages - n0) / seconds
+    before = tf_rate_seen()
+    ok = set_param('tf_rate', 4.0)
+    assert ok.successful, ok.reason
+    after = tf_rate_seen()
+    assert before > 12.0 and 2.0 < after < 6.0, '/tf at %.1f Hz, then %.1f Hz after tf_rate 4' % (before, after)
     ok = set_param('merge_rate', 4.0)
     assert ok.successful, ok.reason
     assert wait_until(lambda: merger.lines('parameter merge_rate set to 4.0'), 5.0)
@@ -179,4 +190,26 @@ def test_5_parameters_at_run_time_and_services(graph):
     reset = call(g, Trigger, '/map_merge/reset', Trigger.Request())
     assert reset.success
     assert wait_until(lambda: merger.lines('all transforms forgotten'), 5.0)
+    assert merger.alive()
+
+
+def test_6_use_sim_time_stamps_on_the_simulated_clock(graph):
+    """use_sim_time set at run time (ROS 2 lets it be): the node's clock, its timers and its
+    stamps follow /clock."""
+    g, merger = graph
+    ok = call(g, SetParameters, '/map_merge/set_parameters', SetParameters.Request(
+        parameters=[Parameter('use_sim_time', value=True).to_parameter_msg()])).results[0]
+    assert ok.successful, ok.reason
+    clock_pub = g.node.create_publisher(Clock, '/clock', 10)
+    sim = 1000.0
+    t = time.time()
+
+    def sim_stamped():
+        nonlocal sim
+        sim += 0.05
+        clock_pub.publish(Clock(clock=Time(sec=int(sim), nanosec=int((sim % 1) * 1e9))))
+        stamp = g.stamp('tb3_1/map', t)
+        return stamp if stamp is not None and 1000.0 < stamp <= sim else None
+    stamp = wait_until(sim_stamped, 10.0, step=0.05)
+    assert stamp, 'no TF stamped on the simulated clock (latest stamp %s)' % g.stamp('tb3_1/map')
     assert merger.alive()
