@@ -170,7 +170,7 @@ $(RUFF):
 # workspace, WITHOUT Debian's site packages (its ROS 1 messages share the ROS 2 ones' names), with
 # tf2_msgs and map_msgs (which PyPI lacks) generated from ros2/interfaces by the rosidl wheels
 # (ros2/tools/make_venv.sh says how). cmake, g++ and python3-dev build those; the stamp names the
-# script and the interfaces, so a change to either makes the venv again (about 1-2 min).
+# script and the interfaces, so a change to either makes the venv again (1-2.5 min, 0.6 GB).
 ROS2_PKGS  := python3-venv python3-dev cmake g++ make
 ROS2_VENV  := $(WS)/venv-jazzy
 ROS2_STAMP := $(ROS2_VENV)/.ok-$(shell cat ros2/tools/make_venv.sh ros2/interfaces/*/msg/*.msg ros2/interfaces/*/CMakeLists.txt 2>/dev/null | md5sum | cut -c1-8)
