@@ -156,7 +156,7 @@ RUFF_VERSION := 0.6.9
 LINT_PKGS    := python3-venv
 RUFF         := $(WS)/ruff-$(RUFF_VERSION)/bin/ruff
 lint: $(RUFF)
-	@$(RUFF) check --no-cache src scripts test bench tools
+	@$(RUFF) check --no-cache src scripts test bench tools ros2
 
 $(RUFF):
 	@mkdir -p $(WS)
@@ -165,3 +165,35 @@ $(RUFF):
 	@/usr/bin/python3 -m venv $(WS)/ruff-$(RUFF_VERSION) && \
 	  $(WS)/ruff-$(RUFF_VERSION)/bin/pip install -q ruff==$(RUFF_VERSION) \
 	  || { rm -rf $(WS)/ruff-$(RUFF_VERSION); exit 1; }
+
+# ROS 2 Jazzy (ros2/, README's "ROS 2 (Jazzy)"): a venv of PyPI's ROS 2 Jazzy wheels beside the
+# workspace, WITHOUT Debian's site packages (its ROS 1 messages share the ROS 2 ones' names), with
+# tf2_msgs and map_msgs (which PyPI lacks) generated from ros2/interfaces by the rosidl wheels
+# (ros2/tools/make_venv.sh says how). cmake, g++ and python3-dev build those; the stamp names the
+# script and the interfaces, so a change to either makes the venv again (1-2.5 min, 0.6 GB).
+ROS2_PKGS  := python3-venv python3-dev cmake g++ make
+ROS2_VENV  := $(WS)/venv-jazzy
+ROS2_STAMP := $(ROS2_VENV)/.ok-$(shell cat ros2/tools/make_venv.sh ros2/interfaces/*/msg/*.msg ros2/interfaces/*/CMakeLists.txt 2>/dev/null | md5sum | cut -c1-8)
+# ROS2_DOMAIN: the ROS_DOMAIN_ID the ROS 2 tests use, by default one of 100-199 named by the
+# checkout's path (two clones on one machine: two domains, as ROS_PORT for ROS 1); the tests'
+# participants discover each other on the loopback only (ROS_AUTOMATIC_DISCOVERY_RANGE)
+ROS2_DOMAIN ?= $(shell echo $$(( 0x$$(echo '$(CURDIR)' | md5sum | cut -c1-6) % 100 + 100 )))
+ROS2_ENV := env -u PYTHONPATH -u ROS_PACKAGE_PATH -u ROS_DISTRO -u ROS_ROOT -u CMAKE_PREFIX_PATH \
+  -u ROS_MASTER_URI -u AMENT_PREFIX_PATH ROS_DOMAIN_ID=$(ROS2_DOMAIN) ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST \
+  RMW_IMPLEMENTATION=rmw_fastrtps_cpp PATH=$(ROS2_VENV)/bin:$(PATH)
+
+.PHONY: ros2-env test-ros2 ros2-venv-path
+ros2-env: $(ROS2_STAMP)
+$(ROS2_STAMP):
+	@mkdir -p $(WS)
+	$(call apt_install,$(ROS2_PKGS))
+	@t0=$$(date +%s); ros2/tools/make_venv.sh $(ROS2_VENV) $(CURDIR) \
+	  && touch $@ && echo "ros2-env: $(ROS2_VENV) made in $$(( $$(date +%s) - t0 )) s, $$(du -sh $(ROS2_VENV) | cut -f1)"
+
+# The ROS 2 node's tests (ros2/test): a real graph of rclpy nodes in the venv of ros2-env.
+test-ros2: ros2-env
+	@cd $(CURDIR) && $(ROS2_ENV) $(ROS2_VENV)/bin/python -m pytest -q -p no:cacheprovider ros2/test
+
+# The ROS 2 venv's folder, for the README's ROS 2 commands in a shell: V=$$(make -s ros2-venv-path)
+ros2-venv-path:
+	@echo $(ROS2_VENV)

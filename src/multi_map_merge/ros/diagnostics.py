@@ -4,6 +4,8 @@ is written for every robot and for the node, and how a reader gets it back per r
 The node publishes them through ``diagnostic_updater`` (one task per robot, one for the
 node): each function fills the status object the updater hands it (a
 ``DiagnosticStatusWrapper``, which is a ``DiagnosticStatus``) or a new ``DiagnosticStatus``.
+The ROS 2 node (``ros2/multi_map_merge_ros2``) writes the same statuses with ROS 2's
+diagnostic_msgs, whose messages take keyword arguments only (hence ``KeyValue(key=, value=)``).
 """
 from __future__ import annotations
 
@@ -113,7 +115,7 @@ def robot_diagnostic(robot: str, st: RobotStatus, gone: bool, now: float,
         s.message += '; no map for %.0f s (over ~stale_map_timeout, %g s; its last map is kept)' % (
             age, stale_map_timeout)
         s.level = max(s.level, DiagnosticStatus.WARN)
-    s.values = [KeyValue(k, v) for k, v in kv]
+    s.values = [KeyValue(key=k, value=v) for k, v in kv]
     return s
 
 
@@ -162,15 +164,15 @@ def node_diagnostic(status: Dict[str, RobotStatus], gone: Dict[str, bool], est_s
     else:
         s.level = DiagnosticStatus.OK
         s.message = '%d robots merged; estimation cycle %.2f s' % (merged, est_seconds)
-    s.values = [KeyValue('last_estimation_s', '%.3f' % est_seconds),
-                KeyValue('robots', str(robots)),
-                KeyValue('merged', str(merged)),
-                KeyValue('not_merged', ' '.join(unmerged) or '-'),
-                KeyValue('vanished', ' '.join(vanished) or '-'),
-                KeyValue('stale', ' '.join(sorted(stale)) or '-'),
-                KeyValue('no_map_yet', ' '.join(sorted(waiting)) or '-'),
-                KeyValue('weakly_pinned', ' '.join(weak) or '-'),
-                KeyValue('last_error', error_text(est_error) if est_error is not None else '-')]
+    s.values = [KeyValue(key='last_estimation_s', value='%.3f' % est_seconds),
+                KeyValue(key='robots', value=str(robots)),
+                KeyValue(key='merged', value=str(merged)),
+                KeyValue(key='not_merged', value=' '.join(unmerged) or '-'),
+                KeyValue(key='vanished', value=' '.join(vanished) or '-'),
+                KeyValue(key='stale', value=' '.join(sorted(stale)) or '-'),
+                KeyValue(key='no_map_yet', value=' '.join(sorted(waiting)) or '-'),
+                KeyValue(key='weakly_pinned', value=' '.join(weak) or '-'),
+                KeyValue(key='last_error', value=error_text(est_error) if est_error is not None else '-')]
     return s
 
 
