@@ -179,9 +179,8 @@ class MapMerger:
         """Forget every transform (maps are kept)."""
         with self._lock:
             self._linker.ledger.reset()
-            self._placer.forget()
+            self._placer.reset()
             self._compositor.forget()
-            self._placer.forget_fields()
 
     # ------------------------------------------------------------------ priors (:class:`PriorBook`)
     def priors(self) -> Priors:

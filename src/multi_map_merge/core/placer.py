@@ -109,12 +109,12 @@ class Placer(TeamListener):
             self._team.settle(list(new))   # fixed once another robot is merged with it
         return [e for n, e in events.items() if n in new]
 
-    def forget_graph(self) -> None:
-        """(under the lock) The reference changed: the pose graph is solved again."""
-        self._graph_key = None
-
-    def forget_fields(self) -> None:
-        """(under the lock) Every transform forgotten: the fields are fitted again."""
+    def reset(self) -> None:
+        """(under the lock) Every transform forgotten: the placements go and the fields are
+        fitted again. The pose graph's and the joint refinement's memos stay: each is keyed by
+        what it was made of (the links; each robot's map and anchor), which the next placement
+        compares anew."""
+        self.placements.clear()
         self.fields.clear()
         self._fields_key = None
 
