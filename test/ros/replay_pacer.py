@@ -56,6 +56,7 @@ class _Slam:
         self.baseline = 0        # played - received when it was last idle: never to be received
         self.log = None          # (file, its unread tail)
         self.pid = None
+        self.pid_asked = 0.0     # when the master was last asked for its process (monotonic s)
         self.cpu = []            # (wall s, CPU s) samples within BUSY_WINDOW_S
 
     def lag(self) -> int:
@@ -63,38 +64,42 @@ class _Slam:
 
 
 class ReplayPacer:
-    """Holds ``player``'s playback while a robot's SLAM lags (see the module). ``log_dir``: the
-    ROS_LOG_DIR of the launch that runs the SLAM nodes; ``scan_topic``: the bag's scans, with
-    ``{robot}``. Use as a context manager around the replay; :attr:`holds` and :attr:`held_s` say
-    how often and how long it held the playback."""
+    """Holds the playback of ``players`` (rosbag play nodes, all at once: bags played as one
+    team stay together) while a robot's SLAM lags (see the module). ``log_dir``: the ROS_LOG_DIR of
+    the launch that runs the SLAM nodes; ``scan_topic``: the bag's scans, with ``{robot}``. Use as
+    a context manager around the replay; :attr:`holds` and :attr:`held_s` say how often and how
+    long it held the playback."""
 
-    def __init__(self, robots: Sequence[str], log_dir: str, player: str = '/rosbag_play',
-                 scan_topic: str = '/{robot}/scan'):
+    def __init__(self, robots: Sequence[str], log_dir: str, players: Sequence[str] = ('/rosbag_play',),
+                 scan_topic: str = '/{robot}/scan', topics: Optional[Dict[str, str]] = None):
         self.slams = {r: _Slam(r) for r in robots}
         self.log_dir = log_dir
-        self.service = player.rstrip('/') + '/pause_playback'
-        self.scan_topic = scan_topic
+        self.services = [p.rstrip('/') + '/pause_playback' for p in players]
+        # robot -> the bag's topic of its scans (``topics``: a SLAM fed another robot's, e.g. tb3_0_norelay)
+        self.topics = {r: (topics or {}).get(r, scan_topic.format(robot=r)) for r in robots}
         self.holds = 0
         self.held_s = 0.0
         self.longest_hold_s = 0.0
         self.gave_up = 0          # holds ended by MAX_HOLD_S
         self._held_since: Optional[float] = None
-        self._pause = None
+        self._pause = {}          # service -> its proxy
         self._lock = threading.Lock()
         self._stop = threading.Event()
+        self._wake = threading.Event()   # a scan played while its SLAM lags: look now
         self._subs = []
         self._thread = threading.Thread(target=self._run, name='replay-pacer', daemon=True)
 
     def __enter__(self):
         from rospy import AnyMsg
         for r, s in self.slams.items():
-            self._subs.append(rospy.Subscriber(self.scan_topic.format(robot=r), AnyMsg, self._on_scan,
+            self._subs.append(rospy.Subscriber(self.topics[r], AnyMsg, self._on_scan,
                                                callback_args=s, queue_size=100))
         self._thread.start()
         return self
 
     def __exit__(self, *exc):
         self._stop.set()
+        self._wake.set()
         self._thread.join(5.0)
         for sub in self._subs:
             sub.unregister()
@@ -114,6 +119,9 @@ class ReplayPacer:
     def _on_scan(self, _msg, slam: _Slam) -> None:
         with self._lock:
             slam.played += 1
+            lagging = slam.lag() >= MAX_LAG
+        if lagging and self._held_since is None:
+            self._wake.set()      # hold at once, not at the next poll: at a high rate scans come faster
 
     def _read_log(self, s: _Slam) -> None:
         if s.log is None:
@@ -135,6 +143,9 @@ class ReplayPacer:
 
     def _busy(self, s: _Slam, now: float) -> bool:
         if s.pid is None:
+            if now - s.pid_asked < 1.0:     # (not registered yet: the master is asked once a second)
+                return False
+            s.pid_asked = now
             s.pid = _node_pid(['/%s/%s' % (s.robot, n) for n in SLAM_NODES])
             if s.pid is None:
                 return False
@@ -151,13 +162,17 @@ class ReplayPacer:
         return t1 - t0 > 0 and (c1 - c0) / (t1 - t0) >= BUSY_SHARE
 
     def _set_paused(self, paused: bool) -> None:
-        try:
-            if self._pause is None:
-                rospy.wait_for_service(self.service, timeout=1.0)
-                self._pause = rospy.ServiceProxy(self.service, SetBool)
-            self._pause(paused)
-        except (rospy.ROSException, rospy.ServiceException):
-            self._pause = None        # the player is not (or no longer) there: nothing to hold
+        done = 0
+        for name in self.services:
+            try:
+                if name not in self._pause:
+                    rospy.wait_for_service(name, timeout=1.0)
+                    self._pause[name] = rospy.ServiceProxy(name, SetBool)
+                self._pause[name](paused)
+                done += 1
+            except (rospy.ROSException, rospy.ServiceException):
+                self._pause.pop(name, None)    # the player is not (or no longer) there: nothing to hold
+        if not done:
             return
         now = time.monotonic()
         if paused:
@@ -170,7 +185,9 @@ class ReplayPacer:
             self._held_since = None
 
     def _run(self) -> None:
-        while not self._stop.wait(POLL_S) and not rospy.is_shutdown():
+        while not self._stop.is_set() and not rospy.is_shutdown():
+            self._wake.wait(POLL_S)
+            self._wake.clear()
             now = time.monotonic()
             lagging = False
             for s in self.slams.values():
@@ -202,14 +219,20 @@ def _node_pid(names: Sequence[str]) -> Optional[int]:
 
 
 def keep_up_failures(bag: str, log_dir: str, robots: Sequence[str], rule: Dict[str, float], label: str = '',
-                     scan_topic: str = '/{robot}/scan', odom_topic: str = '/{robot}/odom') -> List[str]:
+                     scan_topic: str = '/{robot}/scan', odom_topic: str = '/{robot}/odom',
+                     need_log: bool = True) -> List[str]:
     """Per robot whose SLAM processed under MIN_SHARE of the scans its update rule asks for (or
-    left no log), the line a test fails with; empty when every SLAM kept up. Prints each robot's
-    counts (:func:`lab.scans_processed.report`)."""
-    out = []
-    for row in report(bag, log_dir, robots, rule, MIN_SHARE, label, scan_topic, odom_topic):
-        if not row['kept_up']:
-            out.append('SLAM could not keep up: %s processed %s of the %d scans its update rule asks for (%s of the '
-                       "bag's %d reached it): the machine is too busy for this replay, the merge was not judged"
-                       % (row['robot'], row['processed'], row['expected'], row['received'], row['scans']))
-    return out
+    left no log under ``log_dir``, unless not ``need_log``: a SLAM run elsewhere), the line a test
+    fails with; empty when every SLAM kept up. Prints each robot's counts
+    (:func:`lab.scans_processed.report`)."""
+    return [keep_up_line(row['robot'], row['processed'], row['expected'], row['received'], row['scans'])
+            for row in report(bag, log_dir, robots, rule, MIN_SHARE, label, scan_topic, odom_topic)
+            if not row['kept_up'] and (need_log or row['processed'] is not None)]
+
+
+def keep_up_line(robot: str, processed: Optional[int], expected: int, received: Optional[int], played: int) -> str:
+    """The line a test fails with when ``robot``'s SLAM processed under MIN_SHARE of the
+    ``expected`` scans (None: it left no log)."""
+    return ('SLAM could not keep up: %s processed %s of the %d scans its update rule asks for (%s of the %d '
+            'played reached it): the machine is too busy for this replay; the merge was not judged'
+            % (robot, processed, expected, received, played))
