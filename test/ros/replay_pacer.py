@@ -30,8 +30,8 @@ from std_srvs.srv import SetBool
 from multi_map_merge.lab.scans_processed import SLAM_NODES, report
 
 #: scans played since a SLAM was last idle and not yet taken by it, at which the playback is held
-#: (its queue holds 5: at 3 none is dropped, with a poll's worth of scans to spare)
-MAX_LAG = 3
+#: (its queue holds 5: at 2 none is dropped, with scans to spare for the hold to take effect)
+MAX_LAG = 2
 #: wall seconds of CPU history that tell a busy SLAM from an idle one
 BUSY_WINDOW_S = 0.25
 #: the share of one core a SLAM uses over BUSY_WINDOW_S when busy (idle, its TF thread uses ~1 %)
