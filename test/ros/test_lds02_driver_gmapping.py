@@ -25,6 +25,7 @@ import unittest
 
 import rospkg
 import rostest
+from replay_pacer import MAX_HOLD_S, MIN_SHARE, ReplayPacer, keep_up_line
 from rostest_helpers import make_lds02_driver_bag, skip_without_gmapping, stop_launch
 
 from multi_map_merge.lab.scans_processed import bag_scans_and_odom, count_updates, gmapping_updates, load_rule
@@ -36,7 +37,9 @@ SLAM = 'rbpf'        # lds02_driver_gmapping.launch's slam: rbpf or gmapping
 DURATION = 50.0      # s of the bag played: the robots' start rooms, enough to merge them
 RATE = 0.5          # the three gmappings keep up on a shared 2-core machine: at 2x they fell behind
                     # (82%); at 1x, under another job's load (load average 7-12), tb3_0's dropped
-                    # 26-32 of 251 scans from its queue while busy (219-225 reached, under 90%)
+                    # 26-32 of 251 scans from its queue while busy (219-225 reached, under 90%).
+                    # Now the SLAM nodes also pace the playback (ReplayPacer): at most this rate
+LIVE_TIMEOUT_S = 60.0 + 3 * DURATION / RATE   # wall seconds, holds included
 
 
 class TestLds02DriverGmapping(unittest.TestCase):
@@ -72,7 +75,11 @@ class TestLds02DriverGmapping(unittest.TestCase):
                                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
                                   env=dict(os.environ, ROS_LOG_DIR=logs))
         try:
-            rec = record_replay(ROBOTS, period=0.5, idle=4.0, timeout=60.0 + DURATION / RATE)
+            # the live SLAM nodes pace the playback (a held playback stops /clock: idle covers
+            # the longest hold)
+            with ReplayPacer(ROBOTS + ['tb3_0_norelay'], logs, topics={'tb3_0_norelay': '/tb3_0/scan'}) as pacer:
+                rec = record_replay(ROBOTS, period=0.5, idle=MAX_HOLD_S + 4.0, timeout=LIVE_TIMEOUT_S)
+            print(pacer.summary())
         finally:
             stop_launch(launch)
         self.assertIsNotNone(rec['clock'], 'no /clock: the bag did not play')
@@ -90,11 +97,15 @@ class TestLds02DriverGmapping(unittest.TestCase):
             print('%s: %d driver-shaped scans played, %d reached gmapping\'s update rule, it processed %d of the '
                   '%d its update rule asks for from fixed scans (%.0f%%)'
                   % (name, played.sum(), received, processed, expected, 100.0 * processed / max(expected, 1)))
+        # each SLAM kept up (else that is the failure, the machine too busy, not the relay)
+        lagged = [keep_up_line(name, processed, expected, received, played)
+                  for name, (played, received, processed, expected) in sorted(counts.items())
+                  if name in ROBOTS and processed < MIN_SHARE * expected]
+        self.assertEqual(lagged, [], '\n'.join(lagged))
         for name in ROBOTS:
             played, received, processed, expected = counts[name]
             self.assertGreater(expected, 20, name)
             self.assertGreaterEqual(received, 0.9 * played, '%s: gmapping dropped scans with the relay' % name)
-            self.assertGreaterEqual(processed, 0.9 * expected, '%s: gmapping processed too few' % name)
             self.assertIn(name, rec['robot_maps'], '%s: its gmapping made no map' % name)
             self.assertEqual(rec['robots'][name]['diagnostics'].get('merged'), 'true',
                              '%s: %s' % (name, rec['robots'][name]['diagnostics']))

@@ -7,19 +7,24 @@ has none), the merger on top. Every robot merged, every overlapping pair agreein
 transforms, every robot's base frame resolving through `map` by tf2. "gmapping" below is either."""
 import os
 import subprocess
+import tempfile
 import unittest
 
 import numpy as np
+import rospkg
 import rostest
+from replay_pacer import MAX_HOLD_S, ReplayPacer, keep_up_failures
 from rostest_helpers import shared_data, skip_without_gmapping, stop_launch
 
 from multi_map_merge.core.transforms import pose_to_image, se2
 from multi_map_merge.core.verify import agreement
+from multi_map_merge.lab.scans_processed import load_rule
 from multi_map_merge.ros.replay import record_replay
 from multi_map_merge.ros.tools import init_node
 
 ROBOTS = ['tb3_0', 'tb3_1', 'tb3_2']
-RATE = 3.0
+RATE = 3.0         # at most: the live SLAM nodes pace the players (ReplayPacer)
+LIVE_TIMEOUT_S = 400.0   # wall seconds the replay may take, holds included
 SLAM = 'rbpf'      # team_bags_gmapping.launch's slam (its default is gmapping: given here)
 
 
@@ -32,18 +37,30 @@ class TestTeamBagsGmapping(unittest.TestCase):
         if SLAM == 'gmapping':
             skip_without_gmapping(self)
         init_node('test_team_bags_gmapping')
+        logs = tempfile.mkdtemp(prefix='mmm_team_bags_')   # the SLAM nodes' "update frame N" lines
         # isr_small_raw_1 is the longest run (154 s): the team runs on its clock
         launch = subprocess.Popen(['roslaunch', 'multi_map_merge', 'team_bags_gmapping.launch', 'rviz:=false',
                                    'rate:=%g' % RATE, 'clock_bag:=0', 'output:=log', 'slam:=' + SLAM]
                                   + ['bag_%d:=%s' % (i, b) for i, b in enumerate(bags)],
-                                  stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+                                  stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
+                                  env=dict(os.environ, ROS_LOG_DIR=logs))
         try:
             # the merger's timers run on the bag's clock: what it published is sampled while
-            # the bags play (the TF, its /diagnostics, each robot's last gmapping map)
-            rec = record_replay(ROBOTS, period=0.5, idle=4.0, timeout=200.0, base_frame='base_link')
+            # the bags play (the TF, its /diagnostics, each robot's last gmapping map); the live
+            # SLAM nodes pace the three players together (a hold stops /clock: idle covers it)
+            with ReplayPacer(ROBOTS, logs, players=['/play_%s' % r for r in ROBOTS],
+                             scan_topic='/{robot}/scan_raw') as pacer:
+                rec = record_replay(ROBOTS, period=0.5, idle=MAX_HOLD_S + 4.0, timeout=LIVE_TIMEOUT_S,
+                                    base_frame='base_link')
+            print(pacer.summary())
         finally:
             stop_launch(launch)
         self.assertIsNotNone(rec['clock'], 'no /clock: the bags did not play')
+        # each robot's SLAM kept up with its bag: if not, that is the failure (the machine too busy)
+        rule = load_rule(os.path.join(rospkg.RosPack().get_path('multi_map_merge'), 'config', 'gmapping_default.yaml'))
+        lagged = [line for r, b in zip(ROBOTS, bags)
+                  for line in keep_up_failures(b, logs, [r], rule, scan_topic='/scan', odom_topic='/odom')]
+        self.assertEqual(lagged, [], '\n'.join(lagged))
         tf, finals = {}, rec['robot_maps']
         for r in ROBOTS:
             got = rec['robots'][r]

@@ -1,9 +1,13 @@
 """The pair work on a Dask cluster (``dask_scheduler``, :mod:`multi_map_merge.runtime.cluster`):
 a real scheduler and two real workers started here on 127.0.0.1, the merge the same as the local
 pool's, and a lost worker, a lost scheduler or an unreachable one leaving the work to the local
-pool with one log line."""
+pool with one log line.
+
+The tests of a cluster need ``distributed`` (python3-distributed) and skip without it; the tests of
+a machine without it run everywhere, in an interpreter where ``import distributed`` fails."""
 from __future__ import annotations
 
+import hashlib
 import json
 import logging
 import os
@@ -14,21 +18,19 @@ import time
 
 import numpy as np
 import pytest
-from conftest import merged
+from conftest import INTEL_MAP, merged, shared_file
 
-distributed = pytest.importorskip(
-    'distributed', reason='dask.distributed is not installed (optional: only for ~dask_scheduler; '
-                          'Debian/Ubuntu python3-distributed)')
+from multi_map_merge.runtime import cluster
 
-from multi_map_merge.runtime import cluster  # noqa: E402
+NO_DISTRIBUTED = ('dask.distributed is not installed (optional: only for ~dask_scheduler; '
+                  'Debian/Ubuntu python3-distributed)')
 
 SRC = os.path.abspath(os.path.join(os.path.dirname(os.path.abspath(__file__)), '..', '..', '..', 'src'))
 CONFIG = dict(reference_robot='a', map_drift=0.0, map_drift_yaw=0.0)
 LOGGER = cluster.__name__
 
 
-@pytest.fixture(scope='module')
-def pieces(intel):
+def cut_pieces(intel):
     """Two overlapping parts of the Intel lab (b turned and moved) and a corner too small to
     place: the maps of ``halves_merged``."""
     from multi_map_merge.core.grid import known_bbox
@@ -37,6 +39,11 @@ def pieces(intel):
     return {'a': cut_piece(intel, (r0, r1, c0, c0 + int(0.6 * (c1 - c0))), (0, 0, 0))[0],
             'b': cut_piece(intel, (r0, r1, c0 + int(0.4 * (c1 - c0)), c1), (3, -2, 2.0))[0],
             'c': cut_piece(intel, (r0, r0 + 40, c0, c0 + 40), (1, 1, 1.0))[0]}
+
+
+@pytest.fixture(scope='module')
+def pieces(intel):
+    return cut_pieces(intel)
 
 
 @pytest.fixture(scope='module')
@@ -50,6 +57,7 @@ class Cluster:
 
     def __init__(self, tmp):
         self.tmp = tmp
+        self.pids = {}
         self.env = dict(os.environ, PYTHONPATH=SRC + os.pathsep + os.environ.get('PYTHONPATH', ''))
         self.scheduler = None
         self.workers = []
@@ -60,6 +68,7 @@ class Cluster:
                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
 
     def start(self, n_workers=2, deadline_s=60.0):
+        distributed = pytest.importorskip('distributed', reason=NO_DISTRIBUTED)
         f = self.tmp / 'scheduler.json'
         self.scheduler = self._start('distributed.cli.dask_scheduler', '--host', '127.0.0.1', '--port', '0',
                                      '--scheduler-file', str(f), '--no-dashboard',
@@ -78,7 +87,24 @@ class Cluster:
             while len(c.nthreads()) < n_workers:
                 assert time.monotonic() < end, 'the workers did not start'
                 time.sleep(0.1)
+            self.pids = c.run(os.getpid)    # worker address -> its process id
         return self
+
+    def worker_running_a_task(self, deadline_s=30.0):
+        """The process of a worker that is running a task now (its thread in the
+        task's code, as the workers themselves report it: ``Client.call_stack``), and that task's
+        key. Assigned to a worker is not enough: a worker may hold a task it has not begun."""
+        import distributed
+        end = time.monotonic() + deadline_s
+        with distributed.Client(self.address, timeout=10, set_as_default=False) as c:
+            while True:
+                for address, stacks in c.call_stack().items():
+                    keys = list(stacks)   # (only the pool's tasks run on this test's cluster)
+                    if keys:
+                        pid = self.pids[address]
+                        return next(p for p in self.workers if p.pid == pid), str(keys[0])
+                assert time.monotonic() < end, 'no worker began a task within %.0f s' % deadline_s
+                time.sleep(0.05)
 
     @staticmethod
     def kill(p):
@@ -190,12 +216,43 @@ def merged_locally_with_one_line(pieces, local, caplog, address):
         _forget_cluster()
 
 
-def test_without_distributed_the_local_pool_merges_with_one_line(pieces, local, caplog, monkeypatch):
-    caplog.set_level(logging.WARNING)
-    _forget_cluster()
-    monkeypatch.setitem(sys.modules, 'distributed', None)    # import distributed: ImportError
-    line = merged_locally_with_one_line(pieces, local, caplog, 'tcp://127.0.0.1:8786')
-    assert 'python3-distributed is not installed' in line
+# A merge with a scheduler named, in an interpreter where ``import distributed`` fails (as on a
+# machine without python3-distributed, whether or not this one has it): its placements, its
+# composite's cells and the cluster's log lines, as JSON on the last line.
+WITHOUT_DISTRIBUTED = """
+import hashlib, json, logging, sys
+sys.modules['distributed'] = None    # import distributed: ImportError, as where it is not installed
+sys.path[:0] = sys.argv[3:]
+from conftest import INTEL_MAP, merged, shared_file
+from multi_map_merge.core.mapio import load_map
+from test_cluster import CONFIG, cut_pieces
+lines = []
+handler = logging.Handler()
+handler.emit = lambda r: lines.append(r.getMessage())
+logging.getLogger('multi_map_merge.runtime.cluster').addHandler(handler)
+m = merged(cut_pieces(load_map(sys.argv[1])), dask_scheduler=sys.argv[2], **CONFIG)
+g = m.compose()
+print(json.dumps(dict(lines=lines, placements={n: p.T.tolist() for n, p in m.placements().items()},
+                      cells=hashlib.sha1(g.data.tobytes()).hexdigest(),
+                      distributed=sorted(k for k in sys.modules if k.split('.')[0] == 'distributed'
+                                         and sys.modules[k] is not None))))
+"""
+
+
+def test_without_distributed_the_local_pool_merges_with_one_line(pieces, local):
+    here = os.path.dirname(os.path.abspath(__file__))
+    env = dict(os.environ, PYTHONPATH=SRC + os.pathsep + os.environ.get('PYTHONPATH', ''))
+    out = subprocess.run([sys.executable, '-c', WITHOUT_DISTRIBUTED, shared_file(INTEL_MAP), 'tcp://127.0.0.1:8786',
+                          here, os.path.dirname(here)], capture_output=True, text=True, env=env, timeout=300)
+    assert out.returncode == 0, out.stderr[-3000:]
+    got = json.loads(out.stdout.strip().splitlines()[-1])
+    assert got['distributed'] == [], got['distributed']     # not imported: it could not be
+    assert len(got['lines']) == 1 and 'python3-distributed is not installed' in got['lines'][0], got['lines']
+    ref = local.placements()
+    assert sorted(got['placements']) == sorted(ref)
+    for n, T in got['placements'].items():
+        assert np.array_equal(np.array(T), ref[n].T), n
+    assert got['cells'] == hashlib.sha1(local.compose().data.tobytes()).hexdigest()
 
 
 def test_distributed_is_imported_only_when_a_scheduler_is_given(pieces, house_yaml):
@@ -217,6 +274,7 @@ def test_distributed_is_imported_only_when_a_scheduler_is_given(pieces, house_ya
 
 
 def test_an_unreachable_scheduler_falls_back_within_seconds_with_one_line(pieces, local, caplog):
+    pytest.importorskip('distributed', reason=NO_DISTRIBUTED)
     caplog.set_level(logging.WARNING)
     _forget_cluster()
     t0 = time.monotonic()
@@ -229,19 +287,27 @@ def test_an_unreachable_scheduler_falls_back_within_seconds_with_one_line(pieces
 #    process killed meanwhile
 
 
+TASK_S = 3.0   # how long a task of the tests below runs (s): time enough to kill its worker meanwhile
+
+
 def test_a_worker_killed_mid_task_its_task_is_done_by_the_other(dask_cluster):
     p = cluster.pool(dask_cluster.address)
-    futures = [p.submit(time.sleep, 1.5) for _ in range(2)]    # one on each worker
-    time.sleep(0.5)
-    Cluster.kill(dask_cluster.workers[0])
-    assert [f.result(timeout=30) for f in futures] == [None, None]
-    assert p.running()
+    future = p.submit(time.sleep, TASK_S)
+    worker, key = dask_cluster.worker_running_a_task()
+    time.sleep(TASK_S / 2)    # half done: its end, had it gone on, would come TASK_S / 2 after the kill
+    t_kill = time.monotonic()
+    Cluster.kill(worker)
+    assert future.result(timeout=30) is None, key
+    # begun again from its start on the other worker, not finished by the one killed
+    assert time.monotonic() - t_kill >= TASK_S - 0.1, key
+    assert worker.returncode == -signal.SIGKILL
+    assert p.running() and p.finished == 1
 
 
 def test_the_scheduler_killed_mid_task_fails_the_tasks_at_once(dask_cluster):
     p = cluster.pool(dask_cluster.address)
     futures = [p.submit(time.sleep, 30) for _ in range(2)]
-    time.sleep(0.5)
+    dask_cluster.worker_running_a_task()
     t0 = time.monotonic()
     Cluster.kill(dask_cluster.scheduler)
     for f in futures:
@@ -254,7 +320,7 @@ def test_every_worker_killed_mid_task_fails_the_tasks_within_seconds(dask_cluste
     """(dask itself would wait for a worker for ever)"""
     p = cluster.pool(dask_cluster.address)
     futures = [p.submit(time.sleep, 30) for _ in range(2)]
-    time.sleep(0.5)
+    dask_cluster.worker_running_a_task()
     t0 = time.monotonic()
     for w in dask_cluster.workers:
         Cluster.kill(w)

@@ -1,5 +1,6 @@
 """Placement by what all the overlaps say (core/joint.py): every placement refined against every
 placed map it overlaps, bounded, deterministic, and still in the node's placements."""
+import dataclasses
 import math
 
 import numpy as np
@@ -8,8 +9,9 @@ from conftest import INTEL_MAP, MAZE, merged, shared_file
 
 from multi_map_merge.core import joint
 from multi_map_merge.core.composite import lattice_for
+from multi_map_merge.core.grid import known_bbox
 from multi_map_merge.core.mapio import load_map
-from multi_map_merge.core.transforms import apply, inverse, pose_distance, se2
+from multi_map_merge.core.transforms import apply, inverse, pose_distance, se2, within
 
 
 def robots_of(grids):
@@ -60,16 +62,23 @@ def test_a_displaced_placement_comes_back_and_agrees_better(house_pair):
     assert joint.joint_agreement(robots, out, 2) > joint.joint_agreement(robots, anchors, 2) + 0.05
 
 
-def test_refining_twice_gives_the_same_pose(house_pair):
-    """No jitter: the refinement is a function of the maps, the anchors and the other poses,
-    so refining its own result (anchors unchanged) moves nothing."""
-    grids, m = house_pair
-    robots = robots_of(grids)
-    anchors = {n: p.T for n, p in m.placements().items()}
-    lattice = lattice_for(grids['tb3_0'])
+def test_refining_its_own_result_moves_nothing(house_pair):
+    """No jitter from cycle to cycle: a robot's refined pose is a function of the maps, its anchor
+    and the other robots' poses, not of where it stands now. Refined again as the merger's next
+    cycle does (its anchor unchanged, its own result as its current pose) it stays bit for bit;
+    and so it does from any other current pose (its link's, a far one)."""
+    robots, T_link, T_off, lattice = displaced(house_pair)
+    anchors = {'tb3_0': np.eye(3), 'tb3_1': T_off}
     once = joint.refine_placements(robots, anchors, 'tb3_0', lattice, 2)
-    twice = joint.refine_placements(robots, anchors, 'tb3_0', lattice, 2)
-    assert all(np.array_equal(once[n], twice[n]) for n in once)
+    assert pose_distance(once['tb3_1'], T_off)[0] > 0.1          # it moved: there is a result to keep
+    far = at_walls(robots['tb3_1'], T_link, se2(0.8, 0.6, math.radians(15.0)))
+    for name, T_now in (('its own result', once['tb3_1']), ('its link', T_link), ('far', far)):
+        again = joint.refine_placements(robots, anchors, 'tb3_0', lattice, 2,
+                                        current={'tb3_0': np.eye(3), 'tb3_1': T_now}, moving={'tb3_1'})
+        assert np.array_equal(again['tb3_1'], once['tb3_1']), (name, pose_distance(again['tb3_1'], once['tb3_1']))
+    # nor of anything kept between calls: robots made anew from copies of the maps give it too
+    fresh = robots_of({n: dataclasses.replace(g, data=g.data.copy()) for n, g in house_pair[0].items()})
+    assert np.array_equal(joint.refine_placements(fresh, anchors, 'tb3_0', lattice, 2)['tb3_1'], once['tb3_1'])
 
 
 def test_never_moves_beyond_its_window(house_pair):
@@ -103,27 +112,65 @@ def test_three_maze_robots_agree_at_least_as_well_and_no_worse_than_the_truth():
         assert d < 0.15 and math.degrees(a) < 1.5, (n, d, math.degrees(a))
 
 
-def test_the_merger_refines_once_and_keeps_its_placements(house_pair):
+def grown(g):
+    """``g`` with a strip of free cells 3 wide along its known box's right side (unknown there
+    before): a map that really changed, and little."""
+    data = g.data.copy()
+    r0, r1, c0, c1 = known_bbox(g.levels())
+    strip = data[r0:r1, c1:c1 + 3]
+    strip[strip == -1] = 0
+    assert not np.array_equal(data, g.data)
+    return dataclasses.replace(g, data=data)
+
+
+def test_the_merger_refines_once_and_keeps_its_placements(house_pair, monkeypatch):
     """In MapMerger: a refined placement keeps the links' pose in ``graph_T`` and its
-    covariance (pin); a second cycle with nothing changed keeps the very same placements; off,
-    the placements are the links' own."""
+    covariance (pin); a second cycle with nothing changed keeps the very same placements
+    without refining; a map that changed is refined again (``refresh_links`` off: at once, not
+    once it grew by REFINE_GROWTH), moves less than SAME_POSE and so keeps its placement; the
+    map as it was gives the pose of the first refinement again, bit for bit (the same function
+    of the same inputs). Off, the placements are the links' own."""
     grids, _ = house_pair
-    m = merged(grids, reference_robot='tb3_0')
-    off = merged(grids, reference_robot='tb3_0', joint_placement=False)
+    calls = []       # per joint refinement: (the robots it refined, None: all; its poses)
+    refine = joint.refine_placements
+
+    def recorded(*args, **kwargs):
+        out = refine(*args, **kwargs)
+        moving = kwargs.get('moving', args[6] if len(args) > 6 else None)
+        calls.append((None if moving is None else sorted(moving), out))
+        return out
+
+    monkeypatch.setattr(joint, 'refine_placements', recorded)
+    m = merged(grids, reference_robot='tb3_0', refresh_links=False)
+    monkeypatch.setattr(joint, 'refine_placements', refine)
+    off = merged(grids, reference_robot='tb3_0', joint_placement=False, refresh_links=False)
+    monkeypatch.setattr(joint, 'refine_placements', recorded)
+    assert [c[0] for c in calls] == [None]                # the first cycle refined every robot
+    first = calls[0][1]['tb3_1']
     p, q = m.placements()['tb3_1'], off.placements()['tb3_1']
     assert q.graph_T is None
     if p.graph_T is not None:                  # moved: from the links' pose
-        assert np.allclose(p.graph_T, q.T)
+        assert np.allclose(p.graph_T, q.T) and np.array_equal(p.T, first)
+    else:                                      # not beyond SAME_POSE: the links' pose stands
+        assert np.array_equal(p.T, q.T) and within(first, q.T, joint.SAME_POSE)
     assert p.cov is not None and q.cov is not None
     before = m.placements()
     version = m.state_version
+    del calls[:]
     m.estimate()
     after = m.placements()
     assert all(after[n] is before[n] for n in before) and m.state_version == version
-    # a changed map runs it again; the result is the same function of the same inputs
-    m.update_map('tb3_1', grids['tb3_1'])          # unchanged: not even a change
+    assert calls == []                          # nothing changed: nothing refined
+    m.update_map('tb3_1', grown(grids['tb3_1']))
     m.estimate()
-    assert m.placements()['tb3_1'] is before['tb3_1']
+    assert [c[0] for c in calls] == [['tb3_1']], [c[0] for c in calls]    # refined again, alone
+    assert within(calls[0][1]['tb3_1'], before['tb3_1'].T, joint.SAME_POSE)
+    assert m.placements()['tb3_1'] is before['tb3_1']      # a move within SAME_POSE: kept
+    del calls[:]
+    m.update_map('tb3_1', grids['tb3_1'])       # the map as it was
+    m.estimate()
+    assert [c[0] for c in calls] == [['tb3_1']], [c[0] for c in calls]
+    assert np.array_equal(calls[0][1]['tb3_1'], first)
 
 
 def test_robots_without_overlap_keep_their_pose():
@@ -133,7 +180,11 @@ def test_robots_without_overlap_keep_their_pose():
     far = se2(500.0, 0.0, 0.0)
     out = joint.refine_placements(robots, {'a': np.eye(3), 'b': far}, 'a', lattice_for(g), 2)
     assert np.array_equal(out['b'], far)
-    assert inverse(out['a']).shape == (3, 3)
+    assert np.array_equal(out['a'], np.eye(3))       # the reference
+    # the same map near 'a' overlaps it: refined, it moves (so 'b' stayed for want of overlap)
+    near = at_walls(robots['b'], np.eye(3), se2(0.1, -0.08, math.radians(2.0)))
+    moved = joint.refine_placements(robots, {'a': np.eye(3), 'b': near}, 'a', lattice_for(g), 2)
+    assert pose_distance(moved['b'], near)[0] > 0.03, pose_distance(moved['b'], near)
 
 
 def test_only_the_robots_that_moved_are_refined_the_others_held(house_pair):
