@@ -221,7 +221,10 @@ def _time_mean(values: Sequence[Any]) -> str:
 
 def secs(v: str) -> str:
     """A printed time (``_time_mean``, ``_time_worst``) with its unit where it is a number."""
-    return v + ' s' if v[:1].isdigit() else v
+    if not v[:1].isdigit():
+        return v
+    num, _, rest = v.partition(' ')
+    return num + ' s' + (' ' + rest if rest else '')
 
 
 def _time_worst(values: Sequence[Any]) -> str:

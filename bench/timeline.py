@@ -52,7 +52,7 @@ SNAPSHOT_RE = re.compile(r'_t(\d{5})\.yaml$')
 def snapshot_every(single_duration_s: float, points: int = 100, step_s: float = 5.0) -> float:
     """The snapshot period (s of bag time) for a world whose lone robot drives
     ``single_duration_s``: about ``points`` snapshots of the lone run, a multiple of ``step_s``,
-    at least ``step_s`` (the home's 460 s: 5 s; the Intel lab's 2180 s: 25 s)."""
+    at least ``step_s`` (the home's 460 s: 5 s; the Intel lab's 2180 s: 20 s)."""
     raw = float(single_duration_s) / points
     return max(step_s, step_s * round(raw / step_s))
 
