@@ -28,7 +28,7 @@ the best Fitness kept).
 
 Run by ``bench/accuracy.py`` after a condition's SLAM runs, one process per condition::
 
-    python3 bench/timeline.py --truth TEAM.truth.yaml --world WORLD.yaml --every S --out timeline.json \\
+    bench/bench.py timeline --truth TEAM.truth.yaml --world WORLD.yaml --every S --out timeline.json \\
         --team tb3_0=PREFIX0 ... --single PREFIX   # PREFIX.yaml the final map, PREFIX.snap/ its snapshots
 
 The pure parts (``time_to``, ``coverage``) are unit-tested in test/unit/bench/test_timeline.py.
