@@ -25,7 +25,8 @@ def _alive(pid):
 # a parent that starts a child ignoring SIGINT, prints the child's pid, then waits forever
 PARENT = r'''
 import subprocess, sys, time, signal
-c = subprocess.Popen([sys.executable, '-c', 'import signal, time; signal.signal(signal.SIGINT, signal.SIG_IGN); time.sleep(600)'])
+IGNORE = 'import signal, time; signal.signal(signal.SIGINT, signal.SIG_IGN); time.sleep(600)'
+c = subprocess.Popen([sys.executable, '-c', IGNORE])
 print(c.pid, flush=True)
 time.sleep(600)
 '''
