@@ -59,7 +59,8 @@ def test_run_timed_gives_exit_code_cpu_and_timeout(tmp_path):
     assert r['cpu_s'] is not None and r['cpu_s'] > 0.0
     t0 = time.time()
     r = procs.run_timed([sys.executable, '-c', 'import time; time.sleep(60)'], str(tmp_path / 'b.log'), None, 1.0)
-    assert r['timed_out'] and r['rc'] == -signal.SIGINT and time.time() - t0 < 15
+    # stopped by SIGINT, or by SIGKILL when a loaded machine kept it from ending within the grace
+    assert r['timed_out'] and r['rc'] in (-signal.SIGINT, -signal.SIGKILL) and time.time() - t0 < 30
     procs.stop_all()
     try:
         procs.start([sys.executable, '-c', 'pass'], str(tmp_path / 'c.log'))
