@@ -183,20 +183,23 @@ class Condition:
 
     # --- 3. merges and scores
     def score(self) -> None:
+        """Merges and scores, then the coverage over time; ``self.result`` is set once both are
+        done (the results written meanwhile by other conditions list this one as not done)."""
         t0 = time.time()
         try:
-            self.result = self._score()
+            result = self._score()
         except Exception as e:                    # noqa: BLE001 (named in the row and printed)
             traceback.print_exc()
             why = 'scoring failed: %s: %s' % (type(e).__name__, e)
-            self.result = {'rows': {r: Invalid(why) for r in ROWS}, 'details': {}, 'merged_counts': {}}
+            result = {'rows': {r: Invalid(why) for r in ROWS}, 'details': {}, 'merged_counts': {}}
         try:
-            self.result['timeline'] = self.timeline()
+            result['timeline'] = self.timeline()
         except Exception as e:                    # noqa: BLE001 (named in the report and printed)
             traceback.print_exc()
-            self.result['timeline'] = {'invalid': 'timeline failed: %s: %s' % (type(e).__name__, e)}
+            result['timeline'] = {'invalid': 'timeline failed: %s: %s' % (type(e).__name__, e)}
         self.t_done = time.time()
-        self.result['score_wall_s'] = round(self.t_done - t0, 1)
+        result['score_wall_s'] = round(self.t_done - t0, 1)
+        self.result = result
         self.report()
         C.WRITE_RESULTS()
 
