@@ -95,7 +95,11 @@ demo: build
 clean:
 	rm -rf $(WS) demo_output
 
-# Speed and memory against the peers on the same maps (not part of `make test`): prints a table,
+# Every benchmark goes through one command, bench/bench.py NAME (bench/bench.py list names them;
+# bench/README.md). Its results: bench/results/NAME.json and a text table, each with its commit and
+# configuration (bench/results.py).
+# Speed and memory against the peers on the same maps (not part of `make test`): bench/bench.py all
+# (speed, live-gap, pinning-cost, scale, cluster-overhead) prints tables,
 # writes bench/results/{bench.json,bench.png,live.json}. MRPT's CGridMapAligner (libmrpt-dev, Debian)
 # through the project's own driver bench/mrpt_grid_align.cpp, which bench/mrpt_merge.py builds with
 # g++ on first use into /tmp/mmm_mrpt_grid_align; m-explore's map_merge node only where it is
@@ -108,8 +112,7 @@ clean:
 BENCH_PKGS := libmrpt-dev
 bench: build
 	$(call apt_install,$(BENCH_PKGS))
-	@$(ROS_ENV) && cd $(CURDIR) && python3 bench/run_bench.py && python3 bench/live_gap.py && python3 bench/pinning_cost.py | tee bench/results/pinning_cost.txt && python3 bench/scale.py \
-	  && python3 bench/cluster_overhead.py -o bench/results/cluster_overhead.txt
+	@$(ROS_ENV) && cd $(CURDIR) && python3 bench/bench.py all
 
 # The paper's experiment as a benchmark (not part of `make test`): 4 Turtlebot3s merged vs 1 alone,
 # every map made by our SLAM, rbpf_slam (rbpf_slam_replay, every scan, config/rbpf_lds02.yaml),
@@ -122,7 +125,7 @@ bench: build
 ACCURACY_ARGS ?=
 accuracy: build
 	$(call apt_install,$(BENCH_PKGS))
-	@$(ROS_ENV) && cd $(CURDIR) && python3 bench/accuracy.py $(ACCURACY_ARGS)
+	@$(ROS_ENV) && cd $(CURDIR) && python3 bench/bench.py accuracy $(ACCURACY_ARGS)
 
 # Placement covariances against the real error, and each robot's map against the ground truth, on
 # REAL SLAM maps of REAL CARMEN logs (not part of `make test`): 6 logs x 3 and 4 robots x 2 seeds,
@@ -132,7 +135,7 @@ accuracy: build
 # BEND_SWEEP_ARGS="--merge-only --config max_position_sigma=0.2 --stem x"; see bench/README.md.
 BEND_SWEEP_ARGS ?=
 bend-sweep: build
-	@$(ROS_ENV) && cd $(CURDIR) && python3 bench/bend_sweep.py $(BEND_SWEEP_ARGS)
+	@$(ROS_ENV) && cd $(CURDIR) && python3 bench/bench.py bend-sweep $(BEND_SWEEP_ARGS)
 
 # The workspace's setup.bash, for the README's `rosrun multi_map_merge ...` commands in a shell:
 #   make build && source "$(make -s setup-path)"

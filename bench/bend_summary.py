@@ -18,7 +18,7 @@ import numpy as np
 # chi-square 95% quantiles: 3 dof (x, y, yaw) and 2 dof (position only)
 CHI2_3, CHI2_2 = 7.81, 5.99
 # a placement is "off" when its position error exceeds OFF[0] metres or its yaw error OFF[1]
-# degrees: what the pinning sweep calls placed wrong (bench/pinning_sweep.py RIGHT); OFF_WIDE is
+# degrees: what the pinning sweep calls placed wrong (bench/tools/pinning_sweep.py RIGHT); OFF_WIDE is
 # the coarser count the summary also gives (0.2 m or 2 degrees)
 OFF = (0.10, 1.0)
 OFF_WIDE = (0.20, 2.0)

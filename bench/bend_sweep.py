@@ -2,7 +2,7 @@
 """Do the placements' covariances cover the real error, on REAL SLAM maps of REAL laser logs?
 And how well does each robot's SLAM map fit the log's ground truth?
 
-    python3 bench/bend_sweep.py [--logs aces,fhw,...] [--robots 3,4] [--seeds 1,2] [--cases 'aces-*']
+    bench/bench.py bend-sweep [--logs aces,fhw,...] [--robots 3,4] [--seeds 1,2] [--cases 'aces-*']
                                 [--slam rbpf|gmapping] [--config KEY=VALUE ...] [--slam-param KEY=VALUE ...]
                                 [--merge-only] [--no-fit] [--stem bend_sweep]
                                 [--work /tmp/mmm_bend] [--jobs 1] [--port 13500]
@@ -67,10 +67,13 @@ from typing import Any, Dict, List, Optional
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 REPO = os.path.dirname(HERE)
-sys.path.insert(0, HERE)
-sys.path.insert(0, os.path.join(REPO, 'src'))
 
-import accuracy as acc  # noqa: E402  (processes, roscores, cache keys, SLAM runs, scheduler)
+import accuracy_cache  # noqa: E402  (cache keys, bags)
+import accuracy_common as acc  # noqa: E402  (processes, roscores, printed lines, scheduler)
+import accuracy_scoring  # noqa: E402  (best_score)
+import accuracy_slam  # noqa: E402  (SLAM runs)
+import results  # noqa: E402
+from accuracy_summary import group_reasons  # noqa: E402
 from bend_summary import (  # noqa: E402
     own_maps,
     own_maps_lines,
@@ -135,15 +138,15 @@ class Case:
     def make_bags(self) -> None:
         carmen, world = log_path(self.log), truth_map_path(self.log)
         args = ['--robots', str(self.n), '--seed', str(self.seed), '--sensors-only']
-        doc = {'carmen': os.path.basename(carmen), 'carmen_digest': acc.file_digest(carmen),
-               'world_digest': acc.world_digest(world) if os.path.exists(world) else None, 'args': args,
-               'sources': {os.path.relpath(p, REPO): acc.file_digest(p) for p in acc.SIM_SOURCES
+        doc = {'carmen': os.path.basename(carmen), 'carmen_digest': accuracy_cache.file_digest(carmen),
+               'world_digest': accuracy_cache.world_digest(world) if os.path.exists(world) else None, 'args': args,
+               'sources': {os.path.relpath(p, REPO): accuracy_cache.file_digest(p) for p in acc.SIM_SOURCES
                            if os.path.exists(p)}}
-        key = acc.key_of(doc)
+        key = accuracy_cache.key_of(doc)
         d = os.path.join(ARGS.work, 'bags', '%s-%s' % (self.name, key))
         self.bag = {'dir': d, 'key': key, 'team': os.path.join(d, 'team.bag'),
                     'truth': os.path.join(d, 'team.truth.yaml')}
-        cached = acc.cached_bags(d)
+        cached = accuracy_cache.cached_bags(d)
         if cached is not None:
             self.bag.update(cached, cached=True)
             return
@@ -156,7 +159,7 @@ class Case:
             c = [acc.PY, os.path.join(REPO, 'scripts', 'make_robot_bags'), '-o', os.path.join(tmp, 'team.bag'),
                  '--carmen', carmen] + args
             return c + (['--world', world] if os.path.exists(world) else [])
-        r = acc.make_bags_dir(d, doc, cmd)
+        r = accuracy_cache.make_bags_dir(d, doc, cmd)
         self.bag.update(wall_s=r['wall_s'], cpu_s=r['cpu_s'], cached=False)
         say('%s %s: bags made in %.0f s' % (acc.stamp(), self.name, r['wall_s']))
 
@@ -186,17 +189,17 @@ class Case:
 
     def _gmapping_run(self, robot: str) -> Dict[str, Any]:
         slam = ARGS.slam
-        exe = acc.replay_binary(slam)
+        exe = accuracy_slam.replay_binary(slam)
         topic = '/%s/scan' % robot
         # each SLAM's maps in a directory of its own, keyed by the SLAM and its binary too
         d = os.path.join(ARGS.work, acc.SLAMS[slam]['cache'], '%s-%s' % (self.name, self.bag['key']))
         prefix = os.path.join(d, robot)
         doc = {'bag': self.bag['key'], 'robot': robot, 'topic': topic, 'gmapping_seed': self.seed, 'slam': slam,
-               'config': acc.file_digest(SLAM_CONFIG), 'params': ARGS.gmapping_params}
+               'config': accuracy_cache.file_digest(SLAM_CONFIG), 'params': ARGS.gmapping_params}
         if exe is not None:
             st = os.stat(exe)
             doc['binary'] = [exe, st.st_size, int(st.st_mtime)]
-        key = acc.key_of(doc)
+        key = accuracy_cache.key_of(doc)
         if os.path.exists(prefix + '.json'):
             with open(prefix + '.json') as f:
                 meta = json.load(f)
@@ -206,11 +209,11 @@ class Case:
         if ARGS.merge_only:
             return {'invalid': '%s map not cached (--merge-only)' % acc.SLAMS[slam]['label']}
         if exe is None:
-            return {'invalid': acc.slam_missing(slam)}
+            return {'invalid': accuracy_slam.slam_missing(slam)}
         os.makedirs(d, exist_ok=True)
         info = self.truth_doc()['robots'].get(robot, {})
         timeout = 600.0 + 4.0 * float(info.get('duration_s', 1800.0))
-        return acc.run_gmapping(exe, self.bag['team'], topic, robot, self.seed, SLAM_CONFIG, prefix,
+        return accuracy_slam.run_gmapping(exe, self.bag['team'], topic, robot, self.seed, SLAM_CONFIG, prefix,
                                 {'key': key, 'args': doc, 'robot': robot}, timeout, ARGS.port,
                                 os.path.join(ARGS.work, 'ros_home'), ARGS.gmapping_params, slam=slam)
 
@@ -223,15 +226,15 @@ class Case:
         from multi_map_merge.core.transforms import se2, xyyaw
         g = self.gm[robot]
         path = os.path.splitext(g['map'])[0] + '.fit.json'
-        key = acc.key_of({'map': acc.file_digest(os.path.splitext(g['map'])[0] + '.pgm'),
-                          'truth': acc.world_digest(truth_map_path(self.log)), 'start': list(start)})
+        key = accuracy_cache.key_of({'map': accuracy_cache.file_digest(os.path.splitext(g['map'])[0] + '.pgm'),
+                          'truth': accuracy_cache.world_digest(truth_map_path(self.log)), 'start': list(start)})
         if os.path.exists(path):
             with open(path) as f:
                 fit = json.load(f)
             if fit.get('key') == key:
                 return fit
         t = time.time()
-        s = acc.best_score(grid, truth, [se2(*start)])
+        s = accuracy_scoring.best_score(grid, truth, [se2(*start)])
         import numpy as np
         fit = {'key': key, 'pose': list(xyyaw(np.array(s['T']))) if 'T' in s else None,
                'fitness': s.get('fitness'), 'from_start_pose': s.get('from_start_pose'),
@@ -285,7 +288,7 @@ class Case:
         own_fit = {r: {k: f.get(k) for k in ('fitness', 'from_start_pose', 'coverage', 'inlier_rmse', 'from',
                                              'invalid')} for r, f in own.items()}
         if bad:
-            return {'invalid': acc.group_reasons(bad), 'own_fit': own_fit}
+            return {'invalid': group_reasons(bad), 'own_fit': own_fit}
         td = self.truth_doc()
         starts = {r: list(td['robots'][r]['start']) for r in self.robots}
         maps = {r: load_map(self.gm[r]['map']) for r in self.robots}
@@ -411,7 +414,7 @@ def plan(case: Case, sched: 'acc.Scheduler') -> None:
             try:
                 case.gmapping(robot)
             except Exception as e:                # noqa: BLE001 (the case says INVALID and why)
-                if not acc._stopping.is_set():
+                if not acc.PROCS.stopping.is_set():
                     traceback.print_exc()
                 with case.lock:
                     case.gm[robot] = {'invalid': '%s run failed: %s: %s' % (acc.SLAMS[ARGS.slam]['label'],
@@ -419,7 +422,7 @@ def plan(case: Case, sched: 'acc.Scheduler') -> None:
             with case.lock:
                 left['n'] -= 1
                 last = left['n'] == 0
-            if last and not acc._stopping.is_set():
+            if last and not acc.PROCS.stopping.is_set():
                 sched.submit((i, 0), case.merge)
         return job
 
@@ -449,16 +452,16 @@ def write_results(final: bool = False) -> Dict[str, Any]:
         doc = {'complete': final and len(done) == len(CASES), 'line': lines[-1], 'summary': s, 'own_maps': own,
                'args': {'cases': [c.name for c in CASES], 'work': ARGS.work, 'jobs': ARGS.jobs,
                         'merge_config': ARGS.merge_config, 'fit': ARGS.fit,
-                        'slam': ARGS.slam, 'slam_binary': acc.replay_binary(ARGS.slam),
+                        'slam': ARGS.slam, 'slam_binary': accuracy_slam.replay_binary(ARGS.slam),
                         'gmapping_config': os.path.relpath(SLAM_CONFIG, REPO),
                         'gmapping_params': ARGS.gmapping_params},
                'thresholds': {'chi2_3dof': 7.81, 'chi2_2dof': 5.99, 'off': [0.10, 1.0], 'off_wide': [0.20, 2.0]},
                'runtime_s': round(time.time() - T_START, 1), 'cases': cases}
         os.makedirs(ARGS.results, exist_ok=True)
-        with open(os.path.join(ARGS.results, ARGS.stem + '.json'), 'w') as f:
-            json.dump(doc, f, indent=1, default=acc._json_default)
-        with open(os.path.join(ARGS.results, ARGS.stem + '.txt'), 'w') as f:
-            f.write('\n'.join(_out_lines + ([''] + lines if not final else [])) + '\n')
+        config = {k: v for k, v in vars(ARGS).items()}
+        results.write_json(os.path.join(ARGS.results, ARGS.stem + '.json'), doc, config, default=acc._json_default)
+        results.write_text(os.path.join(ARGS.results, ARGS.stem + '.txt'),
+                           _out_lines + ([''] + lines if not final else []), config)
         return {'summary': s, 'lines': lines, 'done': done}
 
 
@@ -545,12 +548,12 @@ def main(argv: Optional[List[str]] = None) -> int:
                         continue
                     CASES.append(c)
                     k += 1
-        exe = acc.replay_binary(ARGS.slam)
+        exe = accuracy_slam.replay_binary(ARGS.slam)
         say('bend sweep: %d cases (%s); work dir %s; %d job(s) at once, nice %d; merge config %s'
             % (len(CASES), ', '.join(c.name for c in CASES), ARGS.work, ARGS.jobs, NICENESS,
                json.dumps(ARGS.merge_config) if ARGS.merge_config else 'defaults'),
             'bend sweep: SLAM %s: %s, %s + %s%s' % (
-                ARGS.slam, exe or 'NONE: every case is INVALID: %s' % acc.slam_missing(ARGS.slam),
+                ARGS.slam, exe or 'NONE: every case is INVALID: %s' % accuracy_slam.slam_missing(ARGS.slam),
                 os.path.relpath(SLAM_CONFIG, REPO), json.dumps(ARGS.gmapping_params),
                 '; --merge-only' if ARGS.merge_only else ''))
         sched = acc.Scheduler()

@@ -2,7 +2,7 @@
 """What a Dask cluster (``~dask_scheduler``) costs per pair against the local process pool, on
 the same pairs of real maps (not a timed test: measured and printed, never asserted).
 
-    python3 bench/cluster_overhead.py [--rows 'house 4' 'intel 4' 'intel-sized x4'] [--rounds 9] [-o FILE]
+    bench/bench.py cluster-overhead [--rows 'house 4' 'intel 4' 'intel-sized x4'] [--rounds 9] [-o FILE]
 
 The rows are run_bench.py's (bench/inputs.py): ``house 4``, the four real Turtlebot3 gmapping
 maps of ../shared/data/tb3_house; ``intel 4``, the Intel map cut into four robots' maps at known
@@ -46,8 +46,8 @@ import time
 import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, HERE)
-import inputs  # noqa: E402  (puts the package's src on sys.path)
+import inputs  # noqa: E402
+import results as results_io  # noqa: E402
 
 from multi_map_merge.core import workers  # noqa: E402
 from multi_map_merge.core.config import MergeConfig  # noqa: E402
@@ -204,8 +204,7 @@ def main(argv=None) -> int:
     say(line)
     if a.out:
         os.makedirs(os.path.dirname(os.path.abspath(a.out)), exist_ok=True)
-        with open(a.out, 'w') as f:
-            f.write('\n'.join(SAID) + '\n')
+        results_io.write_text(a.out, SAID, vars(a))
     return 0 if identical and not invalid else 1
 
 

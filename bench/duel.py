@@ -1,5 +1,5 @@
 """Figures measured in pairs: two or more long-lived processes, burst after burst, in the same
-minutes (bench/versus.py: this tree's cold estimation against another commit's).
+minutes (bench/tools/versus.py: this tree's cold estimation against another commit's).
 
 This VM's speed drifts by up to a factor of two over minutes (other guests share its cores), so
 two figures taken minutes apart can put a ratio near 1 on either side of it. Here each side is

@@ -8,13 +8,11 @@ from __future__ import annotations
 
 import glob
 import os
-import sys
 
 import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 REPO = os.path.dirname(HERE)
-sys.path.insert(0, os.path.join(REPO, 'src'))
 SHARED = os.path.abspath(os.path.join(REPO, '..', 'shared'))
 DATA = os.path.join(SHARED, 'data')
 

@@ -2,7 +2,7 @@
 """Does estimation block publishing? The live node while a long estimation runs and /map has new
 content to publish every merge period.
 
-    python3 bench/live_gap.py [--robots 4] [--late 28] [--join-at 12] [--seconds 40] [--min-periods 4]
+    bench/bench.py live-gap [--robots 4] [--late 28] [--join-at 12] [--seconds 40] [--min-periods 4]
                               [--port 11800] [--no-peer] [--no-build]
 
 Runs `make build` first (unless --no-build) and takes the environment of the workspace's
@@ -34,7 +34,6 @@ import argparse
 import json
 import os
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -42,28 +41,13 @@ import time
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 REPO = os.path.dirname(HERE)
-sys.path.insert(0, HERE)
-sys.path.insert(0, os.path.join(REPO, 'src'))
+import results as results_io  # noqa: E402
 from inputs import pieces_windows, world_map  # noqa: E402
 from peer import NOT_INSTALLED, live_node  # noqa: E402
 from report import machine  # noqa: E402
 
 from multi_map_merge.core.mapio import save_map  # noqa: E402
-
-
-def port_free(port):
-    with socket.socket() as s:
-        try:
-            s.bind(('127.0.0.1', port))
-            return True
-        except OSError:
-            return False
-
-
-def free_port():
-    with socket.socket() as s:
-        s.bind(('127.0.0.1', 0))
-        return s.getsockname()[1]
+from multi_map_merge.lab import processes  # noqa: E402
 
 
 def ros_env(build=True):
@@ -248,30 +232,24 @@ def private_ros_env(base: dict, port: int, tmp: str) -> dict:
 
 class Processes(list):
     """The processes a benchmark starts (each in a session of its own, its output in a log file
-    under ``tmp``), stopped as roslaunch stops nodes: SIGINT, then SIGKILL after 10 s."""
+    under ``tmp``: ``lab.processes.start_group``), stopped as roslaunch stops nodes: SIGINT, then
+    SIGKILL after 10 s (``lab.processes.stop_group``)."""
 
     def __init__(self, env: dict, tmp: str):
         super().__init__()
         self.env, self.tmp = env, tmp
 
     def start(self, cmd, log):
-        p = subprocess.Popen(cmd, env=self.env, stdout=open(os.path.join(self.tmp, log), 'w'),
-                             stderr=subprocess.STDOUT, start_new_session=True)
+        p = processes.start_group(cmd, os.path.join(self.tmp, log), self.env, cwd=os.getcwd(), append=False)
         self.append(p)
         return p
 
     @staticmethod
     def stop(ps):
         for p in ps:
-            try:
-                os.killpg(p.pid, signal.SIGINT)
-            except ProcessLookupError:
-                pass
+            processes.signal_group(p, signal.SIGINT)
         for p in ps:
-            try:
-                p.wait(10)
-            except subprocess.TimeoutExpired:
-                os.killpg(p.pid, signal.SIGKILL)
+            processes.stop_group(p, 10.0)
 
 
 def mexplore_node(no_peer: bool):
@@ -303,7 +281,7 @@ def bench_processes(spec: dict, tmp: str, port: int, build: bool):
     of a run on a private master at ``port`` (another free one if taken): (processes, port)."""
     with open(os.path.join(tmp, 'publish.json'), 'w') as f:
         json.dump(spec, f)
-    port = port if port_free(port) else free_port()
+    port = port if processes.port_free(port) else processes.free_port()
     return Processes(private_ros_env(ros_env(build), port, tmp), tmp), port
 
 def main():
@@ -380,8 +358,7 @@ def main():
         results['mexplore'] = run(peer, 'mexplore.log') if peer else why_not
     finally:
         stop(list(reversed(procs)))
-    with open(os.path.join(a.out, 'live.json'), 'w') as f:
-        json.dump(results, f, indent=1)
+    results_io.write_json(os.path.join(a.out, 'live.json'), results, vars(a))
     print(json.dumps(results, indent=1))
     o = results['ours']
     f = lambda v, fmt='%.2f': '-' if v is None else fmt % v  # noqa: E731

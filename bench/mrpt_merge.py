@@ -1,9 +1,9 @@
 #!/usr/bin/env python3
 """MRPT's grid map aligner behind merge_maps' interface: a reference merger for the benchmarks.
 
-    python3 bench/mrpt_merge.py A.yaml B.yaml ... -o merged.yaml --transforms T.yaml
+    bench/bench.py mrpt-merge A.yaml B.yaml ... -o merged.yaml --transforms T.yaml
                                 [--reference A] [--seed N] [--no-icp]
-    python3 bench/mrpt_merge.py --build        (only build the driver; prints its path)
+    bench/bench.py mrpt-merge --build        (only build the driver; prints its path)
 
 Every pair of maps is aligned by ``mrpt::slam::CGridMapAligner`` (MRPT 2.5.8, Debian's
 ``libmrpt-dev``) through bench/mrpt_grid_align.cpp, the project's own driver, compiled with g++
@@ -40,7 +40,6 @@ NOT_INSTALLED = 'MRPT not installed (libmrpt-dev): not measured'
 LIBS = ['slam', 'maps', 'vision', 'obs', 'poses', 'math', 'random', 'system', 'rtti', 'containers',
         'serialization', 'core']
 ENV = dict(os.environ, PATH='/usr/bin:/bin:' + os.environ.get('PATH', ''))
-sys.path.insert(0, os.path.join(os.path.dirname(HERE), 'src'))
 DRIVER: dict = {}   # the last driver run's wall_s, cpu_s, rss_mb (align_all)
 
 

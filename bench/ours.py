@@ -35,15 +35,11 @@ radians), scored against ``truth`` when given.
 import io
 import json
 import math
-import os
 import resource
 import sys
 import time
 
 import numpy as np
-
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), 'src'))
-
 
 COMPOSE_REPS = 9   # back-to-back compositing runs per burst, both sides (bench/duel.py)
 
@@ -157,7 +153,7 @@ def serve(spec):
 def serve_estimate(spec):
     """Start the worker pool, print {"ready": true}, then for every line read on stdin one cold
     estimation cycle (a new MapMerger holding every map, as in main()), printed as {"ms": ...,
-    "placed": ...}: bench/versus.py alternates these cycles with another commit's (bench/duel.py)."""
+    "placed": ...}: bench/tools/versus.py alternates these cycles with another commit's (bench/duel.py)."""
     from multi_map_merge.core.config import MergeConfig
     from multi_map_merge.core.mapio import load_map
     from multi_map_merge.core.merger import MapMerger

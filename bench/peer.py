@@ -24,8 +24,9 @@ import socket
 import subprocess
 import sys
 import tempfile
-import threading
 import time
+
+from multi_map_merge.lab import processes
 
 PACKAGE, NODE = 'multirobot_map_merge', 'map_merge'
 NOT_INSTALLED = 'm-explore not installed (ros-noetic-multirobot-map-merge): not measured'
@@ -67,25 +68,10 @@ def live_node():
     return node_path() if available()[0] else None
 
 
-_given = set()
-_given_lock = threading.Lock()
-
-
 def free_port():
     """A free port of 12500-12599 not handed out before in this process (threads may run
-    several nodes at once)."""
-    with _given_lock:
-        for port in PORTS:
-            if port in _given:
-                continue
-            with socket.socket() as s:
-                try:
-                    s.bind(('127.0.0.1', port))
-                except OSError:
-                    continue
-            _given.add(port)
-            return port
-    raise RuntimeError('no free port in 12500-12599 for a master')
+    several nodes at once): ``lab.processes.free_port``."""
+    return processes.free_port(PORTS)
 
 
 def _listening(port):
@@ -107,12 +93,17 @@ def _proc_figures(pid):
 
 
 def _stop(p, group=False):
+    """SIGINT, SIGKILL after 10 s: to ``p``'s process group (``lab.processes.stop_group``) or to
+    ``p`` alone (a child of this process's group)."""
+    if group:
+        processes.stop_group(p, 10.0)
+        return
     if p.poll() is None:
-        (os.killpg(p.pid, signal.SIGINT) if group else p.send_signal(signal.SIGINT))
+        p.send_signal(signal.SIGINT)
         try:
             p.wait(10)
         except subprocess.TimeoutExpired:
-            (os.killpg(p.pid, signal.SIGKILL) if group else p.kill())
+            p.kill()
             p.wait()
 
 
@@ -191,7 +182,6 @@ def _feed(spec_path):
     import rospy
     from nav_msgs.msg import OccupancyGrid
 
-    sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), 'src'))
     from multi_map_merge.core.grid import Grid
     from multi_map_merge.core.mapio import load_map, save_map
     with open(spec_path) as f:

@@ -5,7 +5,7 @@ of ``MapMerger.estimate()`` inline (workers=1) with and without it, alternating 
 time spent in the covariance (and the search's pose, ``pair._pin``) over the rest of the same
 cycles, which a loaded machine disturbs far less than two separate runs.
 
-    python3 bench/pinning_cost.py house4 intel4 intel8 edmonton4
+    bench/bench.py pinning-cost house4 intel4 intel8 edmonton4
 """
 import os
 import statistics
@@ -13,8 +13,6 @@ import sys
 import time
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, os.path.join(os.path.dirname(HERE), 'src'))
-sys.path.insert(0, HERE)
 import profile_core  # noqa: E402
 
 from multi_map_merge.core import pair  # noqa: E402

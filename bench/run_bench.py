@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Side-by-side benchmark of multi_map_merge, MRPT's grid map aligner and m-explore's map_merge.
 
-    python3 bench/run_bench.py [--quick] [--no-peer] [--out bench/results]
+    bench/bench.py speed [--quick] [--no-peer] [--out bench/results]
 
 (after `make build` with its devel/setup.bash sourced; `make bench` does both and then runs
 bench/live_gap.py). Every configuration runs in fresh processes: ours in bench/ours.py; MRPT's
@@ -24,13 +24,13 @@ import tempfile
 import time
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, HERE)
 
 import inputs  # noqa: E402
 import memtree  # noqa: E402
 import mrpt_merge  # noqa: E402
 import peer  # noqa: E402
 import report  # noqa: E402
+import results  # noqa: E402
 
 
 def run_ours_once(paths, truth, pairs, root, reps):
@@ -263,8 +263,7 @@ def main():
     result = {'machine': mach, 'total_s': total, 'peers': why, 'peer_note': note,
               'tolerance': {'m': report.TOL_M, 'deg': report.TOL_DEG}, 'rows': rows, 'table': text,
               'soak': soak}
-    with open(os.path.join(a.out, 'bench.json'), 'w') as f:
-        json.dump(result, f, indent=1)
+    results.write_json(os.path.join(a.out, 'bench.json'), result, vars(a))
     try:
         report.plot(rows, os.path.join(a.out, 'bench.png'))
         print('wrote %s and bench.png' % os.path.join(a.out, 'bench.json'))

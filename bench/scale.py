@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Scale: teams of 8, 16, 32 and 64 robots whose maps grow live, merged in real time.
 
-    python3 bench/scale.py [--sizes 8,16,32,64] [--rounds 3] [--world intel] [--seed 0]
+    bench/bench.py scale [--sizes 8,16,32,64] [--rounds 3] [--world intel] [--seed 0]
                            [--estimation-rate 0] [--max-minutes 12] [--no-peer]
                            [--results bench/results]
 
@@ -110,7 +110,7 @@ from typing import Dict, List, Optional, Sequence, Tuple
 import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, HERE)
+import results  # noqa: E402
 from inputs import REPO, world_map  # noqa: E402
 
 SIZES = (8, 16, 32, 64)
@@ -900,10 +900,9 @@ def main(argv=None) -> int:
         out['machine'].get('date', ''), out['machine'].get('nproc', 0), out['loadavg_start'][0],
         out['loadavg_end'][0], out['wall_s']))
     print(lines[-1])
-    with open(os.path.join(a.results, 'scale.json'), 'w') as f:
-        json.dump(out, f, separators=(',', ':'))   # (one line: thousands of update rows)
-    with open(os.path.join(a.results, 'scale.txt'), 'w') as f:
-        f.write('\n'.join(lines) + '\n')
+    results.write_json(os.path.join(a.results, 'scale.json'), out, vars(a),
+                       separators=(',', ':'))   # (one line: thousands of update rows)
+    results.write_text(os.path.join(a.results, 'scale.txt'), lines, vars(a))
     return 0
 
 

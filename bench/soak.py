@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Soak: the live node's memory, CPU and threads over a long run of robots' maps that grow.
 
-    python3 bench/soak.py [--robots 8] [--minutes 30] [--speed 10] [--grow-minutes 20]
+    bench/bench.py soak [--robots 8] [--minutes 30] [--speed 10] [--grow-minutes 20]
                           [--map-interval 5] [--sample 2] [--port 11800] [--no-peer] [--no-build]
 
 Runs `make build` first (unless --no-build), its own roscore, a map publisher (this script,
@@ -41,8 +41,8 @@ import tempfile
 import time
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, HERE)
 import memtree  # noqa: E402
+import results as results_io  # noqa: E402
 from inputs import world_map  # noqa: E402
 from live_gap import bench_processes, growing_map, mexplore_node  # noqa: E402
 from report import machine  # noqa: E402
@@ -278,8 +278,7 @@ def main():
             results['mexplore'] = why_not
     finally:
         stop(list(reversed(procs)))
-    with open(os.path.join(a.out, 'soak.json'), 'w') as f:
-        json.dump(results, f, indent=1)
+    results_io.write_json(os.path.join(a.out, 'soak.json'), results, vars(a))
     out = ['SOAK: %d robots, %.0f robot minutes at %.0fx (%.0f s wall): maps growing for %.0f robot minutes, then '
            'steady in size but changing every message (%d cells flipped); a map per robot every %.0f robot s; '
            'the node\'s process tree sampled every %.0f s (memory: pages counted once). Criterion: %s' % (
@@ -295,8 +294,7 @@ def main():
     else:
         out.append('m-explore: %s' % results['mexplore'])
     print('\n'.join(out))
-    with open(os.path.join(a.out, 'soak.txt'), 'w') as f:
-        f.write('\n'.join(out) + '\n')
+    results_io.write_text(os.path.join(a.out, 'soak.txt'), out, vars(a))
 
 
 if __name__ == '__main__':

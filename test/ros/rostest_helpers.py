@@ -4,7 +4,6 @@ pieces of a map at known poses, comparisons with the truth, the set-up of a test
 pieces (:class:`PiecesTest`), stopping a launch, making a bag of LDS-02 driver scans."""
 import math
 import os
-import signal
 import subprocess
 import sys
 import threading
@@ -62,12 +61,10 @@ def skip_without_gmapping(test: unittest.TestCase) -> None:
 
 def stop_launch(proc: subprocess.Popen, timeout: float = 20.0) -> None:
     """Stop a roslaunch started with ``start_new_session=True``: SIGINT to its process group
-    (roslaunch then stops its nodes), SIGKILL if it has not ended within ``timeout``."""
-    os.killpg(proc.pid, signal.SIGINT)
-    try:
-        proc.wait(timeout)
-    except subprocess.TimeoutExpired:
-        os.killpg(proc.pid, signal.SIGKILL)
+    (roslaunch then stops its nodes), SIGKILL if it has not ended within ``timeout``
+    (``multi_map_merge.lab.processes.stop_group``, the benchmarks' helper too)."""
+    from multi_map_merge.lab.processes import stop_group
+    stop_group(proc, timeout)
 
 
 # others' files in ../shared/data (../shared/data/README.md), never shipped with the project

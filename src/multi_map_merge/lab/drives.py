@@ -1,5 +1,5 @@
 """Robots' maps cut from a real building along its real drive, each in its own frame, with the
-answer known (for the sweeps that calibrate how well a link is pinned, bench/pinning_sweep.py).
+answer known (for the sweeps that calibrate how well a link is pinned, bench/tools/pinning_sweep.py).
 
 The ground-truth maps of ``../shared/data/ground_truth`` were rasterised from the CARMEN logs'
 corrected poses, in the log's frame, so a log's poses say where a robot drove and its scans

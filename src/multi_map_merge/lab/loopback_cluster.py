@@ -14,6 +14,8 @@ import sys
 import time
 from typing import Dict, List, Optional, Tuple
 
+from . import processes
+
 
 class LoopbackCluster:
     """A scheduler and ``n_workers`` workers of one thread each on 127.0.0.1, without nannies
@@ -29,9 +31,8 @@ class LoopbackCluster:
         self.client = None
 
     def _start(self, name: str, *args: str) -> subprocess.Popen:
-        with open(os.path.join(self.tmp, name + '.log'), 'w') as log:
-            return subprocess.Popen([sys.executable, '-m'] + list(args), cwd=self.tmp, env=self.env,
-                                    stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+        return processes.start_group([sys.executable, '-m'] + list(args), os.path.join(self.tmp, name + '.log'),
+                                     self.env, cwd=self.tmp, append=False)
 
     def log(self, name: str, lines: int = 20) -> str:
         """The last ``lines`` of a process's output ('scheduler', 'worker0', ...), for messages."""
@@ -97,14 +98,8 @@ class LoopbackCluster:
 
     @staticmethod
     def kill(p: Optional[subprocess.Popen]) -> None:
-        """SIGKILL to a process's group; waits for it."""
-        if p is not None and p.poll() is None:
-            try:
-                os.killpg(p.pid, signal.SIGKILL)
-            except ProcessLookupError:
-                pass
-        if p is not None:
-            p.wait(timeout=30)
+        """SIGKILL to a process's group; waits for it (``processes.stop_group``)."""
+        processes.stop_group(p, 0.0, first=signal.SIGKILL)
 
     def stop(self) -> None:
         """The client closed, every process killed (workers first)."""

@@ -1,7 +1,7 @@
-"""bench/accuracy.py's cache: a bag's content digest (its messages, not its file), the gmapping
-results found by that content, the migration of results of the old scheme (keyed by the bag key,
-the digest of the simulator's sources) and a bag directory that is not complete left unused. No
-ROS master, no gmapping run; the digest of real bags needs rosbag (skipped without it)."""
+"""bench/accuracy_cache.py, the cache of `make accuracy`: a bag's content digest (its messages,
+not its file), the gmapping results found by that content, the migration of results of the old
+scheme (keyed by the bag key, the digest of the simulator's sources) and a bag directory that is
+not complete left unused. No ROS master, no gmapping run; the digest of real bags needs rosbag (skipped without it)."""
 import hashlib
 import json
 import os
@@ -12,7 +12,9 @@ import pytest
 BENCH = os.path.join(os.path.dirname(__file__), '..', '..', '..', 'bench')
 sys.path.insert(0, os.path.abspath(BENCH))
 
-import accuracy as acc  # noqa: E402
+import accuracy  # noqa: E402
+import accuracy_cache as acc  # noqa: E402
+import accuracy_slam  # noqa: E402
 
 # ------------------------------------------------------------------------------ content digest
 
@@ -344,20 +346,21 @@ def test_replay_binary_per_slam(tmp_path, monkeypatch):
     ws, gm = str(tmp_path / 'ws' / 'devel'), str(tmp_path / 'gm' / 'devel')
     _exe(os.path.join(ws, 'lib', 'multi_map_merge', 'rbpf_slam_replay'))
     monkeypatch.setenv('CMAKE_PREFIX_PATH', ws + ':/usr')
-    assert acc.replay_binary('rbpf') == os.path.join(ws, 'lib', 'multi_map_merge', 'rbpf_slam_replay')
+    assert accuracy_slam.replay_binary('rbpf') == os.path.join(ws, 'lib', 'multi_map_merge', 'rbpf_slam_replay')
     if not os.path.exists('/opt/ros/noetic/lib/gmapping/slam_gmapping_replay'):
-        assert acc.replay_binary('gmapping') is None               # no gmapping here: INVALID and why
-        assert 'gmapping missing' in acc.slam_missing('gmapping') and 'issue 47' in acc.slam_missing('gmapping')
+        assert accuracy_slam.replay_binary('gmapping') is None               # no gmapping here: INVALID and why
+        why = accuracy_slam.slam_missing('gmapping')
+        assert 'gmapping missing' in why and 'issue 47' in why
     _exe(os.path.join(gm, 'lib', 'gmapping', 'slam_gmapping_replay'))
     monkeypatch.setenv('CMAKE_PREFIX_PATH', gm + ':' + ws)
-    assert acc.replay_binary('gmapping') == os.path.join(gm, 'lib', 'gmapping', 'slam_gmapping_replay')
-    assert 'make build' in acc.slam_missing('rbpf')
+    assert accuracy_slam.replay_binary('gmapping') == os.path.join(gm, 'lib', 'gmapping', 'slam_gmapping_replay')
+    assert 'make build' in accuracy_slam.slam_missing('rbpf')
 
 
 def test_the_slam_option():
-    a = acc.parse_args(['--quick'])
+    a = accuracy.parse_args(['--quick'])
     assert a.slam == 'rbpf' and a.stem == 'accuracy_quick'
-    a = acc.parse_args(['--slam', 'gmapping', '--worlds', 'home,intel'])
+    a = accuracy.parse_args(['--slam', 'gmapping', '--worlds', 'home,intel'])
     assert a.slam == 'gmapping' and a.stem == 'accuracy_gmapping'
     with pytest.raises(SystemExit):
-        acc.parse_args(['--slam', 'karto'])
+        accuracy.parse_args(['--slam', 'karto'])

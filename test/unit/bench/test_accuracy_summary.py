@@ -11,6 +11,7 @@ from accuracy_summary import (  # noqa: E402
     ROWS,
     Invalid,
     aggregate,
+    bend_decision,
     fmt,
     from_json,
     group_reasons,
@@ -25,7 +26,8 @@ from accuracy_summary import (  # noqa: E402
 )
 
 LINE = re.compile(r'^accuracy: (\d+) seeds x (\d+) worlds; merged mean (\S+), single mean (\S+), '
-                  r'own maps mean (\S+), rigid bound mean (\S+); worst loss to the rigid bound (\S+)$')
+                  r'team at true starts mean (\S+), rigid bound mean (\S+); worst merged minus true starts (\S+); '
+                  r'time to 90%: team (.+), single (.+)$')
 
 
 def cond(world, seed, **rows):
@@ -89,7 +91,8 @@ def test_aggregate_per_world_and_overall():
     line = summary_line(o)
     m = LINE.match(line)
     assert m, line
-    assert m.groups() == ('2', '2', '0.5500', '0.6500', '0.7000', '0.7875', '0.4000')
+    # merged minus true starts (0.5 each): 0.1, -0.1, 0.0, 0.2: the smallest is -0.1; no timelines
+    assert m.groups() == ('2', '2', '0.5500', '0.6500', '0.5000', '0.7875', '-0.1000', 'INVALID', 'INVALID')
 
 
 def test_summary_line_with_invalid_rows():
@@ -99,7 +102,7 @@ def test_summary_line_with_invalid_rows():
     line = summary_line(agg['overall'])
     m = LINE.match(line)
     assert m, line
-    assert m.group(3) == 'INVALID' and m.group(7) == 'INVALID'     # merged mean, worst loss
+    assert m.group(3) == 'INVALID' and m.group(7) == 'INVALID'     # merged mean, worst against the starts
     assert m.group(4) == '0.5000'                                    # single unaffected
     assert isinstance(agg['worlds']['house']['mexplore']['mean'], Invalid)
 
@@ -125,3 +128,49 @@ def test_markdown_names_invalid_rows():
 def test_group_reasons_names_robots_once_per_reason():
     s = group_reasons([('tb3_0', 'gmapping missing'), ('tb3_1', 'no map saved'), ('tb3_2', 'gmapping missing')])
     assert s == 'tb3_0, tb3_2: gmapping missing; tb3_1: no map saved'
+
+
+def timeline(team_t90, single_t90, team_fit=0.8, single_fit=0.9):
+    score = {'fitness': 0.0, 'inlier_rmse': 0.04, 'free': 0.9, 'walls': 0.8}
+    return {'team_t90': team_t90, 'single_t90': single_t90, 'team_t99': None, 'single_t99': 400.0,
+            'end': {'team': dict(score, fitness=team_fit), 'single': dict(score, fitness=single_fit)},
+            'equal_time': {'team': dict(score, fitness=team_fit), 'single': dict(score, fitness=0.95, free=0.5)}}
+
+
+def test_the_merged_row_is_the_default_merge_and_times_go_into_the_line():
+    conds = [cond('home', 1, merged=0.70, merged_rigid=0.80, starts=0.75),
+             cond('home', 2, merged=0.79, merged_rigid=0.78, starts=0.80)]
+    conds[0]['timeline'] = timeline(100.0, 390.0)
+    conds[1]['timeline'] = timeline(110.0, 410.0, team_fit=0.6)
+    agg = aggregate(conds, ['home'], merged_row='merged_rigid')
+    o = agg['overall']
+    assert abs(o['merged_default'] - 0.79) < 1e-12
+    assert abs(o['worst_vs_starts'] - (-0.02)) < 1e-12              # seed 2: 0.78 - 0.80
+    m = LINE.match(summary_line(o))
+    assert m, summary_line(o)
+    assert m.group(3) == '0.7900' and m.group(7) == '-0.0200'
+    assert m.group(8) == '105 s' and m.group(9) == '400 s'
+    t = agg['worlds']['home']['time']
+    assert t['team_t90']['worst'] == '110' and t['team_t99']['mean'] == 'not reached'
+    assert abs(t['end_team_fitness']['worst'] - 0.6) < 1e-12
+    # bent minus unbent: -0.10 and +0.01: off (a seed loses more than 0.005)
+    assert bend_decision(agg['worlds']['home']['bend_gain']['per_seed']) == 'off'
+
+
+def test_a_time_not_reached_in_some_seeds_says_so():
+    conds = [cond('intel', 1), cond('intel', 2)]
+    conds[0]['timeline'] = timeline(None, 900.0)
+    conds[1]['timeline'] = timeline(300.0, 1100.0)
+    o = aggregate(conds, ['intel'])['overall']
+    m = LINE.match(summary_line(o))
+    assert m and m.group(8) == '300 s (not reached in 1 of 2)' and m.group(9) == '1000 s'
+    conds[1]['timeline'] = {'invalid': 'timeline.py failed'}
+    m = LINE.match(summary_line(aggregate(conds, ['intel'])['overall']))
+    assert m and m.group(8) == 'INVALID' and m.group(9) == 'INVALID'
+
+
+def test_bend_rule():
+    assert bend_decision([0.01, -0.004, 0.002]) == 'on'
+    assert bend_decision([0.01, -0.006, 0.02]) == 'off'          # one seed below unbent - 0.005
+    assert bend_decision([0.0, -0.001]) == 'off'                 # not above on the mean
+    assert bend_decision([0.01, Invalid('x')]).startswith('undecided')

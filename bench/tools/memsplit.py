@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Where the estimation workers' memory comes from, page by page (root: reads /proc/PID/pagemap).
 
-    python3 bench/memsplit.py [--row 'house 4'] [--cycles 2] [--idle 0]
+    bench/bench.py memsplit [--row 'house 4'] [--cycles 2] [--idle 0]
 
 Runs what bench/ours.py --memory runs (the node's imports, the worker pool forked as the node
 forks it, cold cycles of a merger on the row's maps) in this process, with the page frames of
@@ -27,14 +27,9 @@ import subprocess
 import sys
 import time
 
-import numpy as np
-
-HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, HERE)
-sys.path.insert(0, os.path.join(os.path.dirname(HERE), 'src'))
-
 import inputs  # noqa: E402
 import memtree  # noqa: E402
+import numpy as np
 
 PAGE = memtree.PAGE
 

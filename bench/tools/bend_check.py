@@ -1,6 +1,6 @@
 """What bending the maps (core/deform.py, ~bend_maps) can and does gain, on one team's maps.
 
-    python3 bench/bend_check.py DIR TRUTH_FILE [--world WORLD.yaml] [--spacing 2.5]   (default world: TRUTH_FILE's)
+    bench/bench.py bend-check DIR TRUTH_FILE [--world WORLD.yaml] [--spacing 2.5]   (default world: TRUTH_FILE's)
 
 DIR holds the team's final gmapping maps ``tb3_0..3.yaml`` (e.g. a ``make accuracy`` cache
 folder ``/tmp/mmm_accuracy/gmapping/house-s2-...``); TRUTH_FILE is the bag generator's truth file
@@ -25,12 +25,7 @@ import sys
 
 import numpy as np
 import yaml
-
-HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, os.path.join(os.path.dirname(HERE), 'src'))
-sys.path.insert(0, HERE)
-
-from accuracy import best_score, compose_maps  # noqa: E402
+from accuracy_scoring import best_score, compose_maps  # noqa: E402
 
 from multi_map_merge.core import deform  # noqa: E402
 from multi_map_merge.core.composite import composite, lattice_for, warp_patch  # noqa: E402

@@ -3,7 +3,7 @@
 /proc/PID/status) after it started against a real master and, for scan_frame_relay, relayed
 LDS-02 driver-shaped scans at 5 Hz for a few seconds.
 
-    python3 bench/relay_rss.py [--port 11511] [--src DIR] [--seconds 6]
+    bench/bench.py relay-rss [--port 11511] [--src DIR] [--seconds 6]
 
 ``--src``: the package's src/ and scripts/ to measure from another checkout (e.g. an earlier
 commit's ``git archive``), default this one. Needs a sourced workspace (rospy, roscore)."""
@@ -16,7 +16,7 @@ import sys
 import time
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-REPO = os.path.dirname(HERE)
+REPO = os.path.dirname(os.path.dirname(HERE))          # (bench/tools/ -> the checkout)
 RELAYS = ('scan_frame_relay', 'tf_relay', 'frame_prefix_relay')
 
 FEED = r'''

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Cold estimation of this tree against an earlier commit's, in one run, with m-explore beside.
 
-    python3 bench/versus.py [--commit a260f5a] [--rows 'house 4' 'intel 4' ...] [--rounds 11]
+    bench/bench.py versus [--commit a260f5a] [--rows 'house 4' 'intel 4' ...] [--rounds 11]
 
 Did a change cost speed? A ratio taken in another run cannot say: a machine's speed drifts
 between runs. Here the two trees run side by side, round after round (as bench/duel.py pairs
@@ -29,9 +29,8 @@ import tempfile
 
 import numpy as np
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-REPO = os.path.dirname(HERE)
-sys.path.insert(0, HERE)
+BENCH = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))    # (bench/tools/ -> bench/)
+REPO = os.path.dirname(BENCH)
 
 import duel  # noqa: E402
 import inputs  # noqa: E402
@@ -69,7 +68,7 @@ def main():
                     help='the commit to compare with (default: where issue 21 was filed)')
     ap.add_argument('--rows', nargs='*', default=ROWS)
     ap.add_argument('--rounds', type=int, default=duel.ROUNDS)
-    ap.add_argument('--out', default=os.path.join(HERE, 'results'))
+    ap.add_argument('--out', default=os.path.join(BENCH, 'results'))
     a = ap.parse_args()
     head = subprocess.run(['git', '-C', REPO, 'rev-parse', '--short', 'HEAD'], capture_output=True,
                           text=True, check=True).stdout.strip()
@@ -93,7 +92,7 @@ def main():
             spec = os.path.join(root, 'spec_%s.json' % name.replace(' ', '_'))
             with open(spec, 'w') as f:
                 json.dump({'paths': paths}, f)
-            sides = [('this', duel.Server([sys.executable, os.path.join(HERE, 'ours.py'), '--serve-estimate', spec])),
+            sides = [('this', duel.Server([sys.executable, os.path.join(BENCH, 'ours.py'), '--serve-estimate', spec])),
                      ('other', duel.Server([sys.executable, os.path.join(other, 'bench', 'ours.py'),
                                             '--serve-estimate', spec]))]
             try:

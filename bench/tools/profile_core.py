@@ -2,7 +2,7 @@
 """Where does our estimation time go? cProfile of one cold estimation cycle, run inline
 (MergeConfig(workers=1): the worker pool would hide the work from the profiler).
 
-    python3 bench/profile_core.py [edmonton4|intel8|intel16|house4 ...] [--top 25]
+    bench/bench.py profile-core [edmonton4|intel8|intel16|house4 ...] [--top 25]
 
 Prints, per configuration, the functions with the most own time and the most cumulative time,
 and writes results/profile_<config>.txt. Not part of `make bench` (the lead optimises the core
@@ -15,11 +15,9 @@ import cProfile
 import io
 import os
 import pstats
-import sys
 import time
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, HERE)
+BENCH = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))    # (bench/tools/ -> bench/)
 
 import inputs  # noqa: E402
 
@@ -47,7 +45,7 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     ap.add_argument('configs', nargs='*', default=['edmonton4', 'intel16'], choices=sorted(CONFIGS))
     ap.add_argument('--top', type=int, default=25)
-    ap.add_argument('--out', default=os.path.join(HERE, 'results'))
+    ap.add_argument('--out', default=os.path.join(BENCH, 'results'))
     a = ap.parse_args()
     os.makedirs(a.out, exist_ok=True)
     from multi_map_merge.core.config import MergeConfig

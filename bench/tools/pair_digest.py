@@ -1,8 +1,8 @@
 #!/usr/bin/env python3
 """Proof that a change kept the merger's behaviour: a JSON digest of every pair result.
 
-    python3 bench/pair_digest.py -o /tmp/digest_before.json     # before the change
-    python3 bench/pair_digest.py -o /tmp/digest_after.json      # after it
+    bench/bench.py pair-digest -o /tmp/digest_before.json     # before the change
+    bench/bench.py pair-digest -o /tmp/digest_after.json      # after it
     cmp /tmp/digest_before.json /tmp/digest_after.json
 
 The 13 buildings' maps of ``../shared/data`` (the 11 ground-truth maps and the two AWS maps)
@@ -33,8 +33,7 @@ import time
 import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-REPO = os.path.dirname(HERE)
-sys.path.insert(0, os.path.join(REPO, 'src'))
+REPO = os.path.dirname(os.path.dirname(HERE))          # (bench/tools/ -> the checkout)
 DATA = os.path.abspath(os.path.join(REPO, '..', 'shared', 'data'))
 
 

@@ -2,9 +2,9 @@
 """Issue 22's sweeps: how far off each placed robot is, and whether each link's covariance
 (:mod:`core.covariance`) covers its true error.
 
-    python3 bench/pinning_sweep.py -o /tmp/sweep.json            # merge every case (minutes)
-    python3 bench/pinning_sweep.py --cases /tmp/sweep.pkl ...     # reuse the merges
-    python3 bench/pinning_sweep.py --robots-csv results/pinning_chain_flood.csv   # per robot
+    bench/bench.py pinning-sweep -o /tmp/sweep.json            # merge every case (minutes)
+    bench/bench.py pinning-sweep --cases /tmp/sweep.pkl ...     # reuse the merges
+    bench/bench.py pinning-sweep --robots-csv results/pinning_chain_flood.csv   # per robot
 
 Cases, per ground-truth building (``lab/drives.py``: the 11 with a CARMEN log, along their
 real drive, and the two AWS maps, along a drive planned through their free space): ``chain``
@@ -26,14 +26,12 @@ import json
 import math
 import os
 import pickle
-import sys
 import time
 
 import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-REPO = os.path.dirname(HERE)
-sys.path.insert(0, os.path.join(REPO, 'src'))
+REPO = os.path.dirname(os.path.dirname(HERE))          # (bench/tools/ -> the checkout)
 DATA = os.path.abspath(os.path.join(REPO, '..', 'shared', 'data'))
 
 from multi_map_merge.core import covariance  # noqa: E402
