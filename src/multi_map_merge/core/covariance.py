@@ -34,7 +34,7 @@ from .transforms import cell_to_metric, se2
 
 TRUNCATE = 3.0          # cells: a wall farther than this from any wall costs as much as this
 # the likelihood's temperature (cost units: cells^2 of mean squared distance): calibrated on the
-# chain and flood-out sweeps of bench/pinning_sweep.py so that the true pose lies within the 95%
+# chain and flood-out sweeps of bench/tools/pinning_sweep.py so that the true pose lies within the 95%
 # ellipse in at least 95% of links (docs/measurements.md)
 TEMPERATURE = 0.05
 MAX_POINTS = 800        # wall cells scored (evenly thinned)

@@ -222,7 +222,7 @@ def test_a_robot_reached_only_through_a_link_without_covariance_is_weak(graph):
 @pytest.mark.parametrize('n, seed', [(6, 0), (8, 1)])
 def test_no_robot_silently_off_on_a_real_chain(shared_data, n, seed):
     """Issue 22's goal on the chains of edmonton's real drive where robots are placed wrong
-    (`bench/pinning_sweep.py`): every placed robot is within 0.10 m / 1 degree of the truth, or
+    (`bench/tools/pinning_sweep.py`): every placed robot is within 0.10 m / 1 degree of the truth, or
     reported weakly pinned with a 2-sigma (worst direction) that covers its error; and on
     these chains some robot is off (the case still tests the goal)."""
     from multi_map_merge.lab import drives
