@@ -26,7 +26,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Empty
 from std_srvs.srv import Trigger
 
-from multi_map_merge.core import parameters as P
+from multi_map_merge import node_config
 from multi_map_merge.core.grid import Grid, GridError, apply_update, same_grid
 from multi_map_merge.core.merger import MapMerger
 from multi_map_merge.core.priors import PriorOfReference, pose_of
@@ -73,8 +73,8 @@ class MergeNode(Node):
             log.info(line)
         self.cfg = cfg = res.config
         self._diagnostic_period = float(res.library['diagnostic_period'])
-        values = dict(res.library, **{p.name: getattr(cfg, p.name) for p in P.config_parameters()})
-        for p in P.parameters():
+        values = dict(res.library, **{p.name: getattr(cfg, p.name) for p in node_config.config_parameters()})
+        for p in node_config.parameters():
             # ignore_override: a value given was resolved above (an invalid one logged and its default
             # used); rclpy would raise on it instead
             self.declare_parameter(p.name, params.declared_value(p, values[p.name]), params.descriptor(p),

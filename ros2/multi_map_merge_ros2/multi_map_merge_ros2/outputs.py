@@ -17,8 +17,8 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from tf2_msgs.msg import TFMessage
 
-from multi_map_merge.core.config import MergeConfig
 from multi_map_merge.core.merger import MapMerger
+from multi_map_merge.node_config import NodeConfig
 from multi_map_merge.ros.diagnostics import node_diagnostic, robot_diagnostic, stale_maps
 
 from .convert import pose_with_covariance_msg, transform_msg
@@ -30,7 +30,7 @@ LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability
 class PlacementOutputs:
     """TF and ``/<robot>/map_merge/pose`` of ``merger``'s placements, published by ``node``."""
 
-    def __init__(self, node: Node, merger: MapMerger, config: MergeConfig):
+    def __init__(self, node: Node, merger: MapMerger, config: NodeConfig):
         self.node = node
         self.merger = merger
         self.cfg = config
@@ -74,7 +74,7 @@ class PlacementOutputs:
 class NodeHealth:
     """Vanished and stale robots in the log, and /diagnostics (see the module docstring)."""
 
-    def __init__(self, node: Node, merger: MapMerger, config: MergeConfig,
+    def __init__(self, node: Node, merger: MapMerger, config: NodeConfig,
                  publishers_of: Callable[[str], int]):
         self.node = node
         self.merger = merger

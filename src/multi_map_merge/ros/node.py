@@ -21,11 +21,11 @@ from nav_msgs.msg import MapMetaData
 from nav_msgs.srv import GetMap, GetMapResponse
 from std_srvs.srv import Trigger, TriggerResponse
 
-from ..core.config import MergeConfig
 from ..core.grid import Grid, GridError, apply_update, same_grid
 from ..core.merger import MapMerger
 from ..core.state import StateFile
 from ..core.workers import start_pool
+from ..node_config import NodeConfig
 from .before_init import NODE_NAME, workers_before_init
 from .convert import NumpyGrid, NumpyGridUpdate, grid_from_msg, grid_to_msg, metadata
 from .health import NodeHealth
@@ -60,7 +60,7 @@ def log_to_rosout() -> None:
         logger.propagate = False    # (rospy's own lines reach the log file through rosout)
 
 
-def load_config() -> MergeConfig:
+def load_config() -> NodeConfig:
     return load_params().config
 
 
@@ -69,9 +69,9 @@ def load_params():
     (:func:`resolve_params`): an invalid value is logged as an error naming the parameter and
     what it accepts, and its default is used; an unknown name gets a warning naming the closest
     known one; m-explore's names are read as aliases. Every parameter, its default and what it
-    accepts are declared in the tables of :mod:`multi_map_merge.core.parameters` (MergeConfig
-    and config/map_merge.yaml are made from them). Returns the :class:`Resolved` (its
-    ``config`` is the node's)."""
+    accepts are declared in the tables of :mod:`multi_map_merge.core.parameters` and
+    :mod:`multi_map_merge.node_config` (NodeConfig and config/map_merge.yaml are made from
+    them). Returns the :class:`Resolved` (its ``config`` is the node's)."""
     try:
         given = rospy.get_param('~', {})
     except KeyError:
@@ -97,7 +97,7 @@ class MergeNode:
     state on ``/diagnostics`` (``diagnostic_updater``).
     """
 
-    def __init__(self, config: MergeConfig, diagnostic_period: float = 1.0, given_period=1.0):
+    def __init__(self, config: NodeConfig, diagnostic_period: float = 1.0, given_period=1.0):
         self.cfg = config
         # the reference robot: ~reference_robot, else the first of ~robots by name, else the first
         # by name among the robots with a map until another is merged with it (the merger's rule)

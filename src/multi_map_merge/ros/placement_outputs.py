@@ -12,8 +12,8 @@ from geometry_msgs.msg import PoseWithCovarianceStamped
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import MarkerArray
 
-from ..core.config import MergeConfig
 from ..core.merger import MapMerger
+from ..node_config import NodeConfig
 from .convert import pose_with_covariance_msg, transform_msg
 from .markers import markers_key, markers_msg
 
@@ -21,7 +21,7 @@ from .markers import markers_key, markers_msg
 class PlacementOutputs:
     """The publishers of the placements of ``merger`` (see the module docstring)."""
 
-    def __init__(self, merger: MapMerger, config: MergeConfig):
+    def __init__(self, merger: MapMerger, config: NodeConfig):
         self.merger = merger
         self.cfg = config
         # /tf as tf2_ros's TransformBroadcaster sends it (it is this publisher), without importing
