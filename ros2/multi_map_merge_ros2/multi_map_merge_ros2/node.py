@@ -250,7 +250,7 @@ class MergeNode(Node):
             t0 = time.monotonic()
             error = None
             try:
-                for event in self.merger.estimate():
+                for event in self.merger.estimate(defer_refinement=True):
                     log.info(event)
                 self._input.log_reference()
             except Exception as e:   # a bad cycle must not end estimation for good

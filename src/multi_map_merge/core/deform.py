@@ -37,9 +37,6 @@ from typing import Dict, Iterable, List, Optional, Tuple
 
 import cv2
 import numpy as np
-from scipy import sparse
-from scipy.sparse.linalg import spsolve
-from scipy.spatial import cKDTree
 
 from .composite import Lattice, Patch
 from .grid import OCCUPIED
@@ -162,6 +159,7 @@ def _normals(pts: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
     """Unit normals (N, 2) of the walls through each point (the spread of its NORMAL_K nearest
     points) and whether that neighbourhood is line-like."""
     k = min(NORMAL_K, pts.shape[0])
+    from scipy.spatial import cKDTree
     _, nb = cKDTree(pts).query(pts, k=k)
     d = pts[nb] - pts[nb].mean(axis=1, keepdims=True)       # (N, k, 2)
     cxx = (d[..., 0] ** 2).mean(axis=1)
@@ -190,7 +188,9 @@ class _Rows:
             self.vals.append(v * inv_sigma)
         self.n += 1
 
-    def matrix(self, nvar: int) -> sparse.csr_matrix:
+    def matrix(self, nvar: int):
+        """The rows as a scipy.sparse CSR matrix of ``nvar`` columns."""
+        from scipy import sparse
         return sparse.csr_matrix((self.vals, (self.rows, self.cols)), shape=(self.n, nvar))
 
 
@@ -208,6 +208,10 @@ def fit_fields(walls: Dict[str, np.ndarray], poses: Dict[str, np.ndarray], refer
     names = [n for n in sorted(walls) if n in poses and walls[n].shape[0] >= NORMAL_K]
     if len(names) < 2 or not spacing > 0:
         return {}
+    # (scipy is imported only where maps are bent: the node that does not bend never pays its memory)
+    from scipy import sparse
+    from scipy.sparse.linalg import spsolve
+    from scipy.spatial import cKDTree
     fixed = set(fixed)
     pts_map, pts0, normals, lines, grids, widx, wts, base = {}, {}, {}, {}, {}, {}, {}, {}
     total = 0

@@ -50,6 +50,9 @@ class PairLedger(TeamListener):
         self.pinned: Dict[Pair, Tuple[int, int]] = {}      # known cells when its covariance was computed
         self.track_failed: Set[Pair] = set()               # aligned again from features, not tracked
         self.drift_covs: Dict[Pair, tuple] = {}            # its drift's covariance (placement.pin)
+        # a kept link whose covariance search was left for later (pair.pin_later): the link, the
+        # result it was made of, the pair's map versions then
+        self.unpinned: Dict[Pair, Tuple[Link, PairResult, Tuple[int, int]]] = {}
         self.cycle = 0
         self.seen_versions: Dict[str, int] = {}   # per robot: its map's version the last cycle saw
         self.since_slow: Dict[str, int] = {}      # per robot: new versions since its last slow-schedule turn
@@ -61,7 +64,7 @@ class PairLedger(TeamListener):
         records name map versions that never come again (a new map is a new version), so the
         schedule takes its pairs up anew. Returns whether it had a link."""
         had = any(robot in k for k in self.links)
-        for records in (self.links, self.drift_covs, self.restored):
+        for records in (self.links, self.drift_covs, self.restored, self.unpinned):
             for k in [k for k in records if robot in k]:
                 del records[k]
         self.version += had
@@ -96,7 +99,7 @@ class PairLedger(TeamListener):
         """Every transform forgotten: links, results and the schedule's records of every pair.
         The restored links stay (each is verified on the grids before it is used), and so do the
         counters (they count the maps, which are kept)."""
-        for records in (self.links, self.tried, self.aligned, self.refreshed, self.pinned, self.results,
+        for records in (self.links, self.tried, self.aligned, self.refreshed, self.pinned, self.results, self.unpinned,
                         self.drift_covs):
             records.clear()
         self.track_failed.clear()
@@ -144,12 +147,37 @@ class PairLedger(TeamListener):
         self.results[key] = r
         self.track_failed.discard(key)
 
-    def keep(self, key: Pair, old: Optional[Link], link: Link, known: Tuple[int, int]) -> bool:
-        """``link`` replaces ``old`` as the pair's kept link, pinned on maps of ``known`` cells,
-        unless ``old`` was forgotten meanwhile (a reset, a map restart). Returns whether it did."""
+    def keep(self, key: Pair, old: Optional[Link], link: Link, known: Tuple[int, int],
+             r: PairResult, versions: Tuple[int, int]) -> bool:
+        """``link`` (made of the result ``r`` on maps of ``versions``) replaces ``old`` as the
+        pair's kept link, pinned on maps of ``known`` cells (or waiting for its covariance search:
+        ``r.pin_deferred``), unless ``old`` was forgotten meanwhile (a reset, a map restart).
+        Returns whether it did."""
         if self.links.get(key) is not old:
             return False
         self.links[key] = link
+        self.unpinned.pop(key, None)
+        if r.pin_deferred:
+            self.unpinned[key] = (link, r, versions)
+        else:
+            self.pinned[key] = known
+        self.version += 1
+        return True
+
+    def pinned_later(self, key: Pair, link: Link, r: PairResult, T: np.ndarray, known: Tuple[int, int]) -> bool:
+        """The covariance search of ``link`` (:attr:`unpinned`) done: ``r`` is its result pinned
+        (:func:`pair.pin_later`; its pose ``T``, metres of the child's frame -> the parent's),
+        on maps of ``known`` cells. The link takes it (as a new object, with a new stamp: it
+        places the team again) unless it was replaced or forgotten meanwhile. Returns whether it
+        did."""
+        entry = self.unpinned.pop(key, None)
+        if entry is None or entry[0] is not link or self.links.get(key) is not link:
+            return False
+        self.links[key] = dataclasses.replace(link, T=T, agreement=r.agreement, overlap=r.overlap,
+                                              stamp=time.time(), cov=r.cov, bend=r.bend, centre=r.centre,
+                                              parent_turn=r.parent_turn, child_turn=r.child_turn)
+        if self.results.get(key) is entry[1]:
+            self.results[key] = r
         self.pinned[key] = known
         self.version += 1
         return True

@@ -84,15 +84,46 @@ class Linker:
             via = {n: p.via for n, p in placements.items()}
             return self.ledger.plan(facts, cycle.ref, _versions(maps), placed, via, maps[cycle.ref].grid.resolution)
 
-    def align(self, cycle: Cycle, plan: schedule.Plan) -> List[Optional[PairResult]]:
+    def align(self, cycle: Cycle, plan: schedule.Plan, defer_pins: bool = False) -> List[Optional[PairResult]]:
         """(1) AKAZE features of the maps that changed, (2) match, (3) rigid RANSAC + inlier
         ratio, (4) verify on the grids and refine: the plan's pairs in the worker processes,
         within the cycle's budget (a pair not reached: None); a tracked link refined and
-        verified on its new maps (with its covariance when it has none)."""
+        verified on its new maps (with its covariance when it has none). ``defer_pins``: a pair
+        with no kept link leaves its covariance search for :meth:`complete_pins`."""
         with self._lock:
             uncertain = self.ledger.uncertain()
+            defer = frozenset(k for k in plan.todo if k not in self.ledger.links) if defer_pins else frozenset()
         return self._workers.align_pairs(cycle.maps, plan.todo, _as_tracks(cycle.maps, plan.track, uncertain),
-                                         self.config.estimation_budget)
+                                         self.config.estimation_budget, defer)
+
+    def pins_pending(self) -> bool:
+        """Whether a kept link waits for its covariance search (:meth:`complete_pins`)."""
+        with self._lock:
+            return bool(self.ledger.unpinned)
+
+    def complete_pins(self, cycle: Cycle) -> bool:
+        """The covariance searches the cycles left for later (:meth:`align` with
+        ``defer_pins``), of the kept links whose maps are still the versions they were aligned
+        on (a link whose map changed since is tracked, with its covariance, by the next cycle):
+        each link takes its pinned result, as the cycle would have kept it. Whether a link
+        changed."""
+        maps = cycle.maps
+        with self._lock:
+            pending = dict(self.ledger.unpinned)
+            for k, (_, _, versions) in pending.items():
+                if k[0] not in maps or k[1] not in maps or versions != (maps[k[0]].version, maps[k[1]].version):
+                    del self.ledger.unpinned[k]
+        jobs = {k: r for k, (link, r, versions) in pending.items()
+                if k[0] in maps and k[1] in maps and versions == (maps[k[0]].version, maps[k[1]].version)}
+        changed = False
+        for (a, b), r in self._workers.pin_results(maps, jobs).items():
+            pa, ch = maps[a], maps[b]
+            T = image_to_pose(r.A, pa.grid.resolution, pa.grid.origin, ch.grid.resolution, ch.grid.origin)
+            known = (schedule.facts_of(pa, self.config).known, schedule.facts_of(ch, self.config).known)
+            with self._lock:
+                if not cycle.stale(a, b):
+                    changed |= self.ledger.pinned_later((a, b), pending[(a, b)][0], r, T, known)
+        return changed
 
     def keep_planned(self, cycle: Cycle, plan: schedule.Plan, results: List[Optional[PairResult]]) -> None:
         """(4) Each pair's result kept as its link if verified and more reliable than the kept
@@ -141,7 +172,8 @@ class Linker:
         link = Link(a, b, T, inlier_ratio, r.agreement, inliers, r.matches, time.time(), r.overlap,
                     r.cov, r.bend, r.centre, r.parent_turn, r.child_turn)
         with self._lock:
-            self.ledger.keep(key, old, link, known)   # (not when forgotten meanwhile: a reset, a restart)
+            # (not when forgotten meanwhile: a reset, a restart)
+            self.ledger.keep(key, old, link, known, r, (pa.version, ch.version))
 
     def corroborate(self, cycle: Cycle) -> bool:
         """Keep the pair results refused only for too little evidence that corroborate each

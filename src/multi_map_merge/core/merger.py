@@ -68,8 +68,15 @@ class MapMerger:
         self._team.listeners += [ledger, self._placer, self._compositor]
 
     # ------------------------------------------------------------------ the algorithm
-    def estimate(self) -> List[str]:
-        """One estimation cycle; returns human-readable events (merges, improvements)."""
+    def estimate(self, defer_refinement: bool = False) -> List[str]:
+        """One estimation cycle; returns human-readable events (merges, improvements).
+
+        ``defer_refinement`` (what the nodes do, which have spare time between cycles): a new
+        link's covariance search, the joint refinement of robots placed anew and the links
+        corroborated after it are left for :meth:`refresh` (or the next cycle that aligns
+        nothing): the cycle places the robots from their verified links alone,
+        :attr:`Placement.provisional`, sooner. The placements after that are the ones the cycle
+        gives without it."""
         cycle = self._cycle()
         if not cycle.maps:
             return []
@@ -78,29 +85,54 @@ class MapMerger:
         # the pairs whose maps changed: kept links tracked, the others aligned by priority
         plan = self._linker.plan(cycle)
         # (1)-(4) features, matches, rigid RANSAC, verification: in the worker processes
-        results = self._linker.align(cycle, plan)
+        results = self._linker.align(cycle, plan, defer_refinement)
         with self._lock:
             if cycle.stale():
                 return events     # a prior changed meanwhile: these were gated by the old one
         # (4) keep each pair's link if verified and more reliable than the kept one (or tracked)
         self._linker.keep_planned(cycle, plan, results)
+        provisional = defer_refinement and any(r is not None and not r.tracked for r in results)
+        if not provisional and (self._linker.pins_pending() or self._placer.provisional()):
+            return events + self._complete(cycle)    # nothing new aligned: the work left for later, now
         # (4) place every robot through its most reliable links; (6) that is its TF
-        events += self._placer.place(cycle, self._priors.current)
+        events += self._placer.place(cycle, self._priors.current, provisional=provisional)
         # links of little evidence that corroborate each other (a cycle closes): kept, placed again
-        if self._linker.corroborate(cycle):
+        # (after the joint refinement: a provisional cycle leaves them for later too)
+        if not provisional and self._linker.corroborate(cycle):
             events += self._placer.place(cycle, self._priors.current)
         # (5) past rigid: every placed map bent onto the walls of the others, for the merged map
         self._placer.bend(cycle)
         return events
 
+    def _complete(self, cycle: Cycle) -> List[str]:
+        """What a cycle with ``defer_refinement`` left for later: its new links' covariance
+        searches, then every robot placed again (the joint refinement of those placed anew), as
+        that cycle would have placed them. The events."""
+        self._linker.complete_pins(cycle)
+        events = self._placer.place(cycle, self._priors.current)
+        if self._linker.corroborate(cycle):
+            events += self._placer.place(cycle, self._priors.current)
+        self._placer.bend(cycle)
+        return events
+
     def refresh(self, budget: float) -> List[str]:
-        """Spare time between cycles, ``budget`` seconds: the links whose maps grew most tracked
-        again (:meth:`Linker.refresh`), then every robot placed again if a link changed or a map
-        is waiting for its joint refinement (:meth:`Placer.refinement_pending`). The events."""
+        """Spare time between cycles, ``budget`` seconds: first what the last cycle left for
+        later (``estimate(defer_refinement=True)``: :meth:`_complete`, whatever the budget),
+        then the links whose maps grew most tracked again (:meth:`Linker.refresh`), then every
+        robot placed again if a link changed or a map is waiting for its joint refinement
+        (:meth:`Placer.refinement_pending`). The events."""
         cycle = self._cycle()
-        if not cycle.maps or budget <= 0 or not self.config.refresh_links:
+        if not cycle.maps or budget <= 0:
             return []
         deadline = time.monotonic() + budget
+        events = []
+        if self._linker.pins_pending() or self._placer.provisional():
+            events = self._complete(cycle)
+        if not self.config.refresh_links:
+            return events
+        return events + self._refresh_links(cycle, deadline)
+
+    def _refresh_links(self, cycle: Cycle, deadline: float) -> List[str]:
         version = self.state_version
         aborted, batch = self._linker.refresh(cycle, deadline)
         if aborted:

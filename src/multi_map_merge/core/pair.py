@@ -7,6 +7,7 @@ for the next pair is kept in :mod:`cache`.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Optional, Tuple
 
@@ -92,16 +93,32 @@ def refined(config: MergeConfig, pa: PairInput, ch: PairInput, A: np.ndarray,
 AMBIGUITY_APART = (0.5, math.radians(5.0))
 
 
-def align_pair(config: MergeConfig, pa: PairInput, ch: PairInput, seed: int = 0) -> PairResult:
+def align_pair(config: MergeConfig, pa: PairInput, ch: PairInput, seed: int = 0,
+               pin: bool = True) -> PairResult:
     """Cells of ``ch``'s grid -> cells of ``pa``'s grid: (2) match, (3) rigid RANSAC + inlier
     ratio, (4) verification on the grids and ICP refinement. The best-agreeing accepted
     hypothesis is returned, or the best rejected one with its reason (also when a clearly
-    different hypothesis verifies nearly as well: ambiguous, see :func:`_check_ambiguity`)."""
+    different hypothesis verifies nearly as well: ambiguous, see :func:`_check_ambiguity`).
+    ``pin`` False: an accepted result's covariance search is left for :func:`pin_later`
+    (``pin_deferred``); a result refused for too little evidence is searched now all the same
+    (its corroboration needs the covariance)."""
     r = _align_crops(config, pa, ch, seed)
-    if r.accepted or r.few_evidence:     # (a refused link may be corroborated: it needs its covariance)
+    if r.few_evidence or (r.accepted and pin):
         _pin(config, pa, ch, r)
+    elif r.accepted:
+        r.pin_deferred = True
     if r.A is not None:
         r.A = grid_cells(r.A, pa, ch)
+    return r
+
+
+def pin_later(config: MergeConfig, pa: PairInput, ch: PairInput, r: PairResult) -> PairResult:
+    """The covariance search :func:`align_pair` left for later (``r.pin_deferred``), on the
+    same maps: ``r`` as :func:`align_pair` with ``pin`` would have returned it (its pose
+    possibly corrected, its covariance, bend, centre and turns)."""
+    r = dataclasses.replace(r, A=crop_cells(r.A, pa, ch), pin_deferred=False)
+    _pin(config, pa, ch, r)
+    r.A = grid_cells(r.A, pa, ch)
     return r
 
 

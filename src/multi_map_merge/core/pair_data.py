@@ -56,6 +56,8 @@ class PairResult:
             link that another such link can corroborate (:mod:`corroborate`).
         tracked: the kept link followed onto new maps (:func:`track_pair`), not a feature
             match: its ``matches``, ``inliers`` and ``inlier_ratio`` are zero.
+        pin_deferred: accepted, and its covariance search (with the pose it may correct, and
+            ``cov``, ``bend``, ``centre``, the turns) left for later (:func:`pair.pin_later`).
     """
 
     A: Optional[np.ndarray]
@@ -75,6 +77,7 @@ class PairResult:
     parent_turn: Optional[float] = None
     child_turn: Optional[float] = None
     tracked: bool = False
+    pin_deferred: bool = False
 
 
 @dataclass

@@ -71,6 +71,10 @@ class Placement:
     # 3x3 pose the links gave (chain or pose graph) before the joint refinement moved T
     # (:mod:`joint`): the centre of its search window; None when not refined
     graph_T: Optional[np.ndarray] = None
+    # placed by a cycle that left the joint refinement and its links' covariance searches for
+    # the spare time (:meth:`merger.MapMerger.estimate` with ``defer_refinement``): the spare
+    # time's placement replaces it, whatever its reliability
+    provisional: bool = False
 
     @property
     def weak(self) -> bool:
@@ -242,13 +246,15 @@ def hysteresis(config: MergeConfig, best: Dict[str, Placement], old: Dict[str, P
                regraphed: bool) -> Tuple[Dict[str, Placement], Dict[str, str]]:
     """(the placements to adopt, events: per robot merged or improved, what to tell): per robot
     the kept placement stays while its chain holds, unless the new one is more reliable by
-    ``replace_margin`` or the pose graph was solved anew (it moves every robot it places)."""
+    ``replace_margin`` or the pose graph was solved anew (it moves every robot it places); a
+    :attr:`Placement.provisional` one never stays."""
     new: Dict[str, Placement] = {}
     events: Dict[str, str] = {}
     for n, pl in best.items():
         prev = old.get(n)
         still_linked = prev is not None and (prev.via == PRIOR or chain_holds(prev, edges))
-        if (prev is not None and still_linked and pl.inlier_ratio <= prev.inlier_ratio + config.replace_margin
+        if (prev is not None and still_linked and not prev.provisional
+                and pl.inlier_ratio <= prev.inlier_ratio + config.replace_margin
                 and not (regraphed and pl.via != PRIOR)):
             new[n] = prev
             continue
@@ -256,7 +262,8 @@ def hysteresis(config: MergeConfig, best: Dict[str, Placement], old: Dict[str, P
         if n == ref:
             continue
         x, y, yaw = xyyaw(pl.T)
-        what = 'merged' if prev is None else 'transform improved'
+        what = ('merged' if prev is None else 'placement refined' if prev.provisional
+                else 'transform improved')
         events[n] = ('%s %s via %s: x=%.3f m y=%.3f m yaw=%.2f deg, inlier ratio %.3f, agreement %.3f, '
                      'inliers %d' % (n, what, pl.via, x, y, math.degrees(yaw), pl.inlier_ratio, pl.agreement,
                                      pl.inliers))

@@ -88,15 +88,19 @@ class Placer(TeamListener):
         if old and has_map:
             self.placements[new] = Placement(np.eye(3), 1.0, 1.0, 0, '', (new,), time.time())
 
-    def place(self, cycle: Cycle, priors: Callable[[], Priors], also: Set[str] = frozenset()) -> List[str]:
+    def place(self, cycle: Cycle, priors: Callable[[], Priors], also: Set[str] = frozenset(),
+              provisional: bool = False) -> List[str]:
         """(4) Every robot of the ``cycle`` placed from the verified links kept, per robot the
         best placement seen (:meth:`_placed`; ``priors()``: the priors in use, ``also``: robots
-        the joint refinement takes if their map changed at all); the reference settled. Returns
+        the joint refinement takes if their map changed at all); the reference settled.
+        ``provisional``: no joint refinement, and the placements adopted anew are
+        :attr:`Placement.provisional` (the next placement without it replaces them). Returns
         the events (merged, improved); none when the cycle is void (:meth:`Cycle.void`)."""
         with self._lock:
             edges = dict(self._ledger.links)
             old = dict(self.placements)
-        new, events = self._placed(cycle.maps, cycle.ref, edges, old, priors, self._ledger.drift_covs, set(also))
+        new, events = self._placed(cycle.maps, cycle.ref, edges, old, priors, self._ledger.drift_covs, set(also),
+                                   provisional)
         with self._lock:
             if cycle.void():
                 return []            # the reference restarted or changed meanwhile: every placement is void
@@ -120,7 +124,8 @@ class Placer(TeamListener):
 
     def _placed(self, maps: Dict[str, RobotMap], ref: str, edges: Dict[Tuple[str, str], Link],
               old: Dict[str, Placement], priors: Callable[[], Dict[str, List[float]]],
-              drift_covs: Dict[Tuple[str, str], tuple], also: Set[str]) -> Tuple[Dict[str, Placement], Dict[str, str]]:
+              drift_covs: Dict[Tuple[str, str], tuple], also: Set[str],
+              provisional: bool = False) -> Tuple[Dict[str, Placement], Dict[str, str]]:
         """Every robot of ``maps`` placed from the verified links ``edges``, the kept placements
         ``old`` standing unless the new one is better; (the new placements, the events: per robot
         merged or improved, what to tell). ``priors()``: the priors in use; ``drift_covs``: the links' drift covariances
@@ -151,10 +156,21 @@ class Placer(TeamListener):
         # the kept placement stays unless the new one is better
         new, events = placement.hysteresis(c, best, old, edges, ref, regraphed)
         # every placement refined against every placed map it overlaps, when one was adopted anew
-        new = self._joint(maps, new, old, ref, also)
+        if not provisional:
+            new = self._joint(maps, new, old, ref, also)
         # how well each is pinned: its links' covariances, along its chain or by the graph
         placement.pin(c, new, edges, ref, graph_key is not None, drift_covs)
+        if provisional:
+            for n, p in new.items():
+                if n != ref and (p is not old.get(n) or p.provisional):
+                    # (its covariance is that of links not all searched yet: not a weak placement)
+                    p.provisional, p.weak_reason = True, ''
         return new, events
+
+    def provisional(self) -> bool:
+        """Whether a placement is provisional (:meth:`place`)."""
+        with self._lock:
+            return any(p.provisional for p in self.placements.values())
 
     def refinement_pending(self, cycle: Cycle) -> List[str]:
         """The placed robots of the ``cycle`` whose map changed since the joint refinement last

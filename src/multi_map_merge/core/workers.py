@@ -24,7 +24,7 @@ import time
 import zlib
 from concurrent.futures import FIRST_COMPLETED, wait
 from concurrent.futures.process import BrokenProcessPool
-from typing import Dict, List, Optional, Tuple
+from typing import Dict, FrozenSet, List, Optional, Tuple
 
 import numpy as np
 
@@ -32,7 +32,7 @@ from ..runtime import pool as local_pool
 from ..runtime.memory import run_task
 from .config import MergeConfig
 from .features import Features
-from .pair import PairInput, PairResult, align_pair, crop_known, describe_version, track_pair
+from .pair import PairInput, PairResult, align_pair, crop_known, describe_version, pin_later, track_pair
 from .robot_map import RobotMap
 
 _MERGERS = itertools.count()
@@ -99,12 +99,16 @@ class PairWorkers:
 
     def align_pairs(self, maps: Dict[str, RobotMap], todo: List[Tuple[str, str]],
                     tracks: Optional[Dict[Tuple[str, str], Tuple[np.ndarray, bool]]] = None,
-                    budget: float = 0.0) -> List[Optional[PairResult]]:
+                    budget: float = 0.0, defer_pin: FrozenSet[Tuple[str, str]] = frozenset()
+                    ) -> List[Optional[PairResult]]:
         """Every pair of ``todo`` (parent, child) worked on, the results in ``todo``'s order: a
         pair of ``tracks`` follows its kept link (``tracks[pair]``: cells of the child's grid ->
         cells of the parent's, and whether to compute its covariance: :func:`pair.track_pair`);
         the others are aligned from their
         features (:func:`pair.align_pair`, the features of the maps that changed computed first).
+
+        ``defer_pin``: pairs whose accepted result leaves its covariance search for later
+        (:func:`pair.pin_later`, :meth:`pin_results`).
 
         ``budget`` (seconds, 0 = none): no alignment but the first starts after it has passed
         since the call began; the pairs not started get None (the merger tries them in a later cycle). Tracked
@@ -129,18 +133,18 @@ class PairWorkers:
             try:
                 pool = cluster.pool(address)
                 if pool is not None:
-                    return self._align_pairs(maps, todo, pool, tracks, budget)
+                    return self._align_pairs(maps, todo, pool, tracks, budget, defer_pin)
             except cluster.failure_types() as e:
                 cluster.lost(address, e)
         try:
-            return self._align_pairs(maps, todo, self.pool_for(maps), tracks, budget)
+            return self._align_pairs(maps, todo, self.pool_for(maps), tracks, budget, defer_pin)
         except BrokenProcessPool:
             local_pool.discard()
             raise
 
     def _align_pairs(self, maps: Dict[str, RobotMap], todo: List[Tuple[str, str]], pool,
                      tracks: Dict[Tuple[str, str], Tuple[np.ndarray, bool]],
-                     budget: float) -> List[Optional[PairResult]]:
+                     budget: float, defer_pin: FrozenSet[Tuple[str, str]]) -> List[Optional[PairResult]]:
         c = self.config
         deadline = time.monotonic() + budget if budget > 0 else math.inf
         seeds = {ab: zlib.crc32(('%s|%s' % ab).encode()) for ab in todo}
@@ -154,7 +158,8 @@ class PairWorkers:
             for i, ab in enumerate(detect):
                 if i and time.monotonic() > deadline:
                     break                     # (one alignment at least per cycle: progress)
-                results[ab] = align_pair(c, self.input(maps[ab[0]]), self.input(maps[ab[1]]), seeds[ab])
+                results[ab] = align_pair(c, self.input(maps[ab[0]]), self.input(maps[ab[1]]), seeds[ab],
+                                         ab not in defer_pin)
             return [results.get(ab) for ab in todo]
         running: Dict[object, tuple] = {}    # future -> ('track' | 'pair', pair) or ('features', map)
         for ab in todo:
@@ -185,7 +190,8 @@ class PairWorkers:
                     for n in ab:
                         if n not in inputs:
                             inputs[n] = self.input(maps[n])
-                    running[pool.submit(run_task, align_pair, c, inputs[ab[0]], inputs[ab[1]], seeds[ab])] = (
+                    running[pool.submit(run_task, align_pair, c, inputs[ab[0]], inputs[ab[1]], seeds[ab],
+                                        ab not in defer_pin)] = (
                         'pair', ab)
                     waiting.remove(ab)
                     busy += 1
@@ -202,6 +208,22 @@ class PairWorkers:
                     results[what] = fut.result()
             start_ready()
         return [results.get(ab) for ab in todo]
+
+
+    def pin_results(self, maps: Dict[str, RobotMap],
+                    jobs: Dict[Tuple[str, str], PairResult]) -> Dict[Tuple[str, str], PairResult]:
+        """The covariance searches left for later (:func:`pair.pin_later`) of the accepted
+        results ``jobs`` (pair -> its result, on the current versions of ``maps``), in the
+        worker processes when these maps' alignments would be: pair -> the result pinned."""
+        c = self.config
+        if not jobs:
+            return {}
+        pool = self.pool_for(maps)
+        inputs = {n: self.input(maps[n], False) for ab in jobs for n in ab}
+        if pool is None:
+            return {ab: pin_later(c, inputs[ab[0]], inputs[ab[1]], r) for ab, r in jobs.items()}
+        futures = {ab: pool.submit(run_task, pin_later, c, inputs[ab[0]], inputs[ab[1]], r) for ab, r in jobs.items()}
+        return {ab: f.result() for ab, f in futures.items()}
 
 
 def start_pool(workers: int = 0) -> None:

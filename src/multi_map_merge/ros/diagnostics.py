@@ -68,7 +68,7 @@ def robot_diagnostic(robot: str, st: RobotStatus, gone: bool, now: float,
         kv += [(k, FORMAT[k] % d[k]) for k in ('inlier_ratio', 'agreement', 'inliers', 'x', 'y', 'yaw')]
         sigma = 0.0 if st.reference else d.get('sigma_position')   # the reference is exact
         kv += [('sigma_position', FORMAT['sigma_position'] % sigma if sigma is not None else '-'),
-               ('weak', str(d['weak']).lower())]
+               ('weak', str(d['weak']).lower()), ('provisional', str(st.placement.provisional).lower())]
         kv += [('age_s', '%.1f' % (now - st.placement.stamp))]
     if st.last_attempt is not None:
         a = st.last_attempt
@@ -82,6 +82,10 @@ def robot_diagnostic(robot: str, st: RobotStatus, gone: bool, now: float,
     elif st.merged and st.placement.weak:
         s.level = DiagnosticStatus.WARN
         s.message = 'merged via %s, weakly pinned: %s' % (st.placement.via, st.placement.weak_reason)
+    elif st.merged and st.placement.provisional:
+        # OK: placed from verified links; its covariance and joint refinement come in the spare time
+        s.level = DiagnosticStatus.OK
+        s.message = 'merged via %s (first placement: refined before the next cycle)' % st.placement.via
     elif st.merged:
         s.level, s.message = DiagnosticStatus.OK, 'merged via %s' % st.placement.via
     elif st.linked_to:

@@ -199,7 +199,7 @@ class MergeNode:
             error = None
             try:
                 self._priors.check_spawn_poses()
-                for event in self.merger.estimate():
+                for event in self.merger.estimate(defer_refinement=True):
                     rospy.loginfo('multi_map_merge: %s', event)
                 self._input.log_reference()
             except Exception as e:  # a bad cycle must not end estimation for good

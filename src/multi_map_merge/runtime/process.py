@@ -73,9 +73,15 @@ def fork_now(pool) -> None:
     then), and with OpenCV on one thread meanwhile: OpenCV's own thread pool, once started (a
     warp before), would be copied without its threads, and a worker changing its thread count
     would wait for them for ever (seen with OpenCV 4.2's pthreads pool)."""
+    import gc
+
     import cv2
     threads = cv2.getNumThreads()
     cv2.setNumThreads(1)
+    # Every object alive now (the imports', above all) out of the collector's reach for good:
+    # a collection writes to each object it visits, and each page it writes in this process
+    # afterwards is one page more for the machine, the workers keeping the page as it was
+    gc.freeze()
     try:
         pool.submit(int).result()
     finally:

@@ -316,3 +316,27 @@ def test_a_map_bent_in_the_merged_map_says_how_far():
     s = robot_diagnostic('tb3_2', st, False, NOW)
     assert s.message == 'merged via tb3_0' and values(s)['bent in the merged map (m)'] == '0.05'
     assert 'bent in the merged map (m)' not in values(robot_diagnostic('tb3_1', merged(), False, NOW))
+
+
+def test_a_first_placement_says_it_is_provisional_until_refined(intel):
+    """The node's first cycle (``defer_refinement``) places robots before their links'
+    covariances and their joint refinement: OK, not weakly pinned, and said provisional; after
+    the spare time's refresh it is no longer (and weakly pinned or not by its covariance)."""
+    from multi_map_merge.core.grid import known_bbox
+    from multi_map_merge.core.merger import MapMerger
+    from multi_map_merge.lab.pieces import cut_piece
+    r0, r1, c0, c1 = known_bbox(intel.levels())
+    w = c1 - c0
+    m = MapMerger()
+    for n, (a, b), pose in zip('ab', [(0.0, 0.6), (0.4, 1.0)], [(0, 0, 0), (3, -2, 2.0)]):
+        m.update_map(n, cut_piece(intel, (r0, r1, c0 + int(a * w), c0 + int(b * w)), pose)[0])
+    m.estimate(defer_refinement=True)
+    st = m.status()
+    s = robot_diagnostic('b', st['b'], False, NOW)
+    assert s.level == DiagnosticStatus.OK
+    assert s.message == 'merged via a (first placement: refined before the next cycle)'
+    assert (values(s)['provisional'], values(s)['weak']) == ('true', 'false')
+    m.refresh(math.inf)
+    s = robot_diagnostic('b', m.status()['b'], False, NOW)
+    assert values(s)['provisional'] == 'false' and s.message.startswith('merged via a')
+    assert 'first placement' not in s.message
