@@ -685,7 +685,7 @@ def run_team(robots: int, rounds: int, world_name: str, seed: int, max_s: float,
                 break
             taken = feeder.taken()
             start = feeder.now()
-            events = merger.estimate()
+            events = merger.estimate(defer_refinement=True)     # as the node runs it
             end = feeder.now()
             next_start = start + period
             placed = sorted(merger.placements())
