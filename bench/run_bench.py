@@ -133,6 +133,12 @@ def run_mexplore(paths, root):
     return peer.run_node(paths, out_dir=tempfile.mkdtemp(prefix='mexplore_', dir=root))
 
 
+def run_mexplore_estimate(paths, root):
+    """m-explore's cold estimation on ``paths`` (bench/peer.py run_estimation: its node's own
+    cycles, timed by its DEBUG lines): {'estimate_ms', 'estimate_first_ms', ...} or {'invalid': why}."""
+    return peer.run_estimation(paths, out_dir=tempfile.mkdtemp(prefix='mexplore_est_', dir=root))
+
+
 def run_soak(out, no_peer):
     """bench/soak.py (the live node's memory, CPU and threads over 30 robot minutes at 10x; its
     own roscore), in its own process: {'text': its summary, 'json': results/soak.json} or why not."""
@@ -164,6 +170,19 @@ def peers_state(a):
     return why, note
 
 
+def configurations(a):
+    """inputs.configurations, only the rows named by ``--rows`` when given (exits naming the rows
+    when one is unknown)."""
+    confs = inputs.configurations(a.quick)
+    if not a.rows:
+        return confs
+    names = [c[0] for c in confs]
+    unknown = [r for r in a.rows if r not in names]
+    if unknown:
+        raise SystemExit('no row %s (rows: %s)' % (', '.join(map(repr, unknown)), ', '.join(names)))
+    return [c for c in confs if c[0] in a.rows]
+
+
 def memory_only(a):
     """Each row's peak memory: ours (memory_ours) against MRPT's aligner and m-explore's node,
     measured one after the other on the same maps (memory does not depend on the load)."""
@@ -174,7 +193,7 @@ def memory_only(a):
     print('PEAK MEMORY  (ours: the node\'s process tree, pages counted once; RSS sum: each process\'s '
           'peak RSS summed, the old figure; MRPT: its aligner process\'s peak RSS; m-explore: its node\'s '
           'peak RSS)%s\n%s\n%s' % ('' if not note else '  NOTE: ' + note, h, '-' * len(h)), flush=True)
-    for name, _kind, gt in inputs.configurations(a.quick):
+    for name, _kind, gt in configurations(a):
         paths, truth = inputs.write_inputs(name.replace(' ', '_'), gt, root)
         n = len(paths)
         cycles = 1 if n > 8 or inputs.median_cells(paths) > 1_500_000 else 3
@@ -201,6 +220,9 @@ def main():
     ap.add_argument('--memory-only', action='store_true',
                     help='only the memory: the node\'s tree against the peers (about 3 min); '
                          'prints the table, writes nothing')
+    ap.add_argument('--rows', action='append', metavar='NAME',
+                    help="only these rows ('house 4', 'intel-sized x8'...; repeat for more); nothing of the "
+                         'run is written but its table (a partial run must not stand for the whole)')
     ap.add_argument('--out', default=os.path.join(HERE, 'results'))
     a = ap.parse_args()
     if a.memory_only:
@@ -212,7 +234,7 @@ def main():
         print('NOTE:', note, flush=True)
     root = tempfile.mkdtemp(prefix='mmm_bench_')
     rows = []
-    for name, kind, gt in inputs.configurations(a.quick):
+    for name, kind, gt in configurations(a):
         paths, truth = inputs.write_inputs(name.replace(' ', '_'), gt, root)
         n = len(paths)
         reps = 3 if n <= 16 else 1    # fresh processes for ours
@@ -239,19 +261,25 @@ def main():
                 mrpt = {'skipped': 'INVALID: %s' % e}
         mrpt['bench_s'] = time.time() - t0
         if why['mexplore']:
-            mx = {'invalid': why['mexplore']}
+            mx = mx_est = {'invalid': why['mexplore']}
         elif n > a.peer_max_robots:
-            mx = {'invalid': above}
+            mx = mx_est = {'invalid': above}
         else:
             mx = run_mexplore(paths, root)
+            mx_est = run_mexplore_estimate(paths, root)
         rows.append({'name': name, 'kind': kind, 'robots': n, 'reps': reps, 'cycles': cycles, 'pairs': pairs,
-                     'ours': ours, 'mrpt': mrpt, 'mexplore': mx})
-        print('.. %-16s ours: cold %7.0f ms (%.0f s)   MRPT: aligner %s s, whole run %s s (%.0f s)   m-explore: %s'
+                     'ours': ours, 'mrpt': mrpt, 'mexplore': mx, 'mexplore_est': mx_est})
+        print('.. %-16s ours: cold %7.0f ms (%.0f s)   MRPT: aligner %s s, whole run %s s (%.0f s)   m-explore: %s; '
+              'its estimation %s'
               % (name, ours['cold_ms'], ours['bench_s'], report._f(mrpt.get('align_s'), '%.2f'),
                  report._f(mrpt.get('wall_s'), '%.2f'), mrpt['bench_s'],
-                 peer.column(mx, 'first_map_s', '%.1f s to its first merged /map')), flush=True)
+                 peer.column(mx, 'first_map_s', '%.1f s to its first merged /map'),
+                 peer.column(mx_est, 'estimate_ms', '%.0f ms (median of its cycles)')), flush=True)
     text = report.rows_table(rows, note)
     print(text)
+    if a.rows:
+        print('\n(--rows: a partial run, nothing written; run_bench took %.0f s)' % (time.time() - t_all))
+        return
     soak = None
     if not (a.quick or a.no_soak):
         soak = run_soak(a.out, a.no_peer)
