@@ -250,6 +250,7 @@ LOG_FORMAT = 'MMMT ${walltime} ${severity} ${message}'
 LOG_LINE = re.compile(r'MMMT (\d+\.\d+) +[A-Z]+ (.*?)(?:\x1b\[0m)?$')
 # the node's rates for the estimation run (Hz): cycles back to back, no compositing in between
 ESTIMATION_RATES = {'discovery_rate': 1.0, 'estimation_rate': 100.0, 'merging_rate': 0.01}
+ESTIMATION_CYCLES = 9   # as many as ours' 3 processes x 3 cycles on the small rows
 
 
 def estimation_cycles(lines, robots):
@@ -279,17 +280,19 @@ def estimation_cycles(lines, robots):
     return cycles
 
 
-def run_estimation(paths, cycles=5, max_seconds=120.0, out_dir=None):
+def run_estimation(paths, cycles=None, max_seconds=120.0, out_dir=None):
     """m-explore's cold estimation on the maps ``paths``, timed from its own log (see the
     module's docstring): its node started with ``known_init_poses`` false and ESTIMATION_RATES,
-    stopped after ``cycles`` complete cycles with every map (or after ``max_seconds``, with at
-    least one). Returns {'estimate_ms': median over the cycles, 'estimate_first_ms': the first
-    cycle with every map, 'estimate_runs_ms', 'cycle_ms' (median, with taking and feeding the
-    grids), 'cycles', 'matched_cycles' (cycles that found maps matched), 'rss_mb', 'cpu_s' (the node's,
-    at its end), 'log'} or {'invalid': why}."""
+    stopped after ``cycles`` (ESTIMATION_CYCLES when None) complete cycles with every map (or
+    after ``max_seconds``, with at least one). Returns {'estimate_ms': median over the cycles,
+    'estimate_first_ms': the first cycle with every map, 'estimate_runs_ms', 'cycle_ms' (median,
+    with taking and feeding the grids), 'cycles', 'matched_cycles' (cycles that found maps
+    matched), 'rss_mb', 'cpu_s' (the node's, at its end), 'log'} or {'invalid': why}; times in
+    ms of the wall clock."""
     ok, why = available()
     if not ok:
         return {'invalid': why}
+    cycles = cycles or ESTIMATION_CYCLES
     work = out_dir or tempfile.mkdtemp(prefix='mmm_mexplore_est_')
     os.makedirs(work, exist_ok=True)
     config = os.path.join(work, 'rosconsole.config')
@@ -403,18 +406,27 @@ def main(argv=None):
     """``peer.py A.yaml B.yaml ... -o merged.yaml [--settle S] [--timeout S]``: m-explore's node on
     the maps (known_init_poses false), its last merged /map ``settle`` s after its first saved as
     merged.yaml, its figures printed as one JSON line; exit 3 when it is not installed, 1 when it
-    gave no merged map."""
+    gave no merged map. ``peer.py A.yaml B.yaml ... --estimate [--cycles N]``: its estimation
+    cycles instead (run_estimation), one JSON line."""
     import argparse
     import shutil
     ap = argparse.ArgumentParser(description=main.__doc__.split('\n\n')[0])
     ap.add_argument('maps', nargs='+')
-    ap.add_argument('-o', '--output', required=True)
+    ap.add_argument('-o', '--output')
     ap.add_argument('--settle', type=float, default=10.0)
     ap.add_argument('--timeout', type=float, default=300.0)
+    ap.add_argument('--estimate', action='store_true', help='time its estimation cycles (no merged map)')
+    ap.add_argument('--cycles', type=int, default=ESTIMATION_CYCLES)
     a = ap.parse_args(argv)
     if not available()[0]:
         print(available()[1], file=sys.stderr)
         return 3
+    if a.estimate:
+        res = run_estimation(a.maps, cycles=a.cycles)
+        print(json.dumps(res))
+        return 1 if 'invalid' in res else 0
+    if not a.output:
+        ap.error('-o/--output is required (or --estimate)')
     res = run_node(a.maps, timeout=a.timeout, settle=a.settle)
     print(json.dumps(res))
     if 'invalid' in res:
