@@ -14,18 +14,7 @@ is read. Figures: the time from the node's start to its first merged ``/map`` (m
 one only once it has placed two maps or more), the CPU seconds of its process by then and its peak
 RSS (VmHWM). A run that saw no ``/map`` in time says INVALID with why, not a number.
 
-Its cold estimation (:func:`run_estimation`), comparable to ours' ``cold_ms``: m-explore estimates
-from scratch every estimation cycle (map_merge.cpp ``poseEstimation`` feeds every grid to
-combine_grids' ``MergingPipeline::estimateTransforms``: AKAZE features of every map, every pair
-matched, the biggest component, affine estimation and bundle adjustment; nothing is kept between
-cycles). Its node is run unmodified with its own DEBUG lines on (a rosconsole config for its logger
-``ros.multirobot_map_merge``) stamped with the wall time (``ROSCONSOLE_FORMAT`` ``${walltime}``),
-``estimation_rate`` 100 Hz (so that cycles run back to back: ``ros::Rate`` does not sleep after a
-cycle longer than its period) and ``merging_rate`` 0.01 Hz (no compositing or publishing competes
-for the 2 cores). A cycle's estimate time runs from its ``computing features`` line (the grids
-fed, inside ``estimateTransforms``) to the next cycle's ``Grid pose estimation started.`` line
-(``estimateTransforms`` returned, its lock released); only cycles that started after every map's
-``received full map update`` count.
+Its cold estimation: ``peer_estimate.py``.
 
 Where it is: ``rospack find multirobot_map_merge`` in this process's environment, or in the
 catkin workspace whose setup file ``MMM_MEXPLORE_SETUP`` names (sourced with ``--extend`` over this
@@ -36,10 +25,8 @@ from __future__ import annotations
 import json
 import math
 import os
-import re
 import signal
 import socket
-import statistics
 import subprocess
 import sys
 import tempfile
@@ -124,7 +111,7 @@ def _listening(port):
         return s.connect_ex(('127.0.0.1', port)) == 0
 
 
-def _proc_figures(pid):
+def proc_figures(pid):
     """(CPU s, peak RSS MB) of a live process, from /proc."""
     with open('/proc/%d/stat' % pid) as f:
         fields = f.read().rsplit(')', 1)[1].split()
@@ -152,7 +139,7 @@ def _stop(p, group=False):
             p.wait()
 
 
-class _Session:
+class Session:
     """A master of its own, the maps' feeder (their params set, maps latched) and m-explore's
     node started with ``node_args`` and ``node_env``; everything stopped by ``close``. ``why``
     is '' or why it did not start (then the node was not started)."""
@@ -217,7 +204,7 @@ def run_node(paths, poses=None, timeout=120.0, settle=0.0, out_dir=None):
     os.makedirs(work, exist_ok=True)
     args = ['_known_init_poses:=%s' % ('false' if poses is None else 'true')] + [
         '_%s:=%s' % kv for kv in RATES.items()]
-    s = _Session(paths, poses, timeout, settle, work, True, args)
+    s = Session(paths, poses, timeout, settle, work, True, args)
     try:
         if s.why:
             return {'invalid': s.why}
@@ -226,105 +213,18 @@ def run_node(paths, poses=None, timeout=120.0, settle=0.0, out_dir=None):
             if s.node.poll() is not None:
                 return {'invalid': 'm-explore\'s node exited (%s, see %s)' % (s.node.returncode, s.log.name)}
             if figures is None and os.path.exists(s.result + '.first'):
-                figures = _proc_figures(s.node.pid)     # at its first merged map
+                figures = proc_figures(s.node.pid)     # at its first merged map
             time.sleep(0.05)
         if not os.path.exists(s.result):
             return {'invalid': 'no merged /map from m-explore within %.0f s: INVALID (%s)' % (timeout, s.log.name)}
         with open(s.result) as f:
             got = json.load(f)
-        cpu_end, rss = _proc_figures(s.node.pid)
+        cpu_end, rss = proc_figures(s.node.pid)
         cpu_first = figures[0] if figures else cpu_end
         return {'first_map_s': got['first_t'] - s.t0, 'cpu_s': cpu_first, 'cpu_end_s': cpu_end, 'rss_mb': rss,
                 'merged_yaml': got.get('merged_yaml'), 'maps_seen': got['count'], 'log': s.log.name}
     finally:
         s.close()
-
-
-# m-explore 2.1.4's own DEBUG lines (map_merge.cpp, merging_pipeline.cpp) that time its estimation
-CYCLE_START, FEATURES_START = 'Grid pose estimation started.', 'computing features'
-MAP_RECEIVED = 'received full map update'
-MATCHED = 'calculating transforms in global reference frame'   # a cycle found two maps or more matched
-# rosconsole's line: wall time (s.ns), severity, message
-LOG_FORMAT = 'MMMT ${walltime} ${severity} ${message}'
-# a line of it, whatever rosconsole wraps it in (colour codes on a terminal or not)
-LOG_LINE = re.compile(r'MMMT (\d+\.\d+) +[A-Z]+ (.*?)(?:\x1b\[0m)?$')
-# the node's rates for the estimation run (Hz): cycles back to back, no compositing in between
-ESTIMATION_RATES = {'discovery_rate': 1.0, 'estimation_rate': 100.0, 'merging_rate': 0.01}
-ESTIMATION_CYCLES = 9   # as many as ours' 3 processes x 3 cycles on the small rows
-
-
-def estimation_cycles(lines, robots):
-    """The complete estimation cycles in m-explore's log ``lines`` (LOG_FORMAT, DEBUG on) that
-    started after ``robots`` maps had arrived: [{'start', 'features', 'end' (wall s), 'estimate_ms'
-    (its ``computing features`` line to the next cycle's start: ``estimateTransforms`` of every
-    map), 'cycle_ms' (start to the next start: also taking the grids and feeding them), 'matched'
-    (it found two maps or more matched and went on to place them)}], in order. Lines of other formats are ignored."""
-    events = []
-    for line in lines:
-        m = LOG_LINE.search(line)
-        if m:
-            events.append((float(m.group(1)), m.group(2).strip()))
-    received, cycles, current = 0, [], None
-    for t, msg in events:
-        if msg == MAP_RECEIVED:
-            received += 1
-        elif msg == CYCLE_START:
-            if current is not None and current.get('features') is not None:
-                cycles.append(dict(current, end=t, estimate_ms=(t - current['features']) * 1000.0,
-                                   cycle_ms=(t - current['start']) * 1000.0))
-            current = {'start': t, 'features': None, 'matched': False} if received >= robots else None
-        elif msg == FEATURES_START and current is not None:
-            current['features'] = t
-        elif msg == MATCHED and current is not None:
-            current['matched'] = True
-    return cycles
-
-
-def run_estimation(paths, cycles=None, max_seconds=120.0, out_dir=None):
-    """m-explore's cold estimation on the maps ``paths``, timed from its own log (see the
-    module's docstring): its node started with ``known_init_poses`` false and ESTIMATION_RATES,
-    stopped after ``cycles`` (ESTIMATION_CYCLES when None) complete cycles with every map (or
-    after ``max_seconds``, with at least one). Returns {'estimate_ms': median over the cycles,
-    'estimate_first_ms': the first cycle with every map, 'estimate_runs_ms', 'cycle_ms' (median,
-    with taking and feeding the grids), 'cycles', 'matched_cycles' (cycles that found maps
-    matched), 'rss_mb', 'cpu_s' (the node's, at its end), 'log'} or {'invalid': why}; times in
-    ms of the wall clock."""
-    ok, why = available()
-    if not ok:
-        return {'invalid': why}
-    cycles = cycles or ESTIMATION_CYCLES
-    work = out_dir or tempfile.mkdtemp(prefix='mmm_mexplore_est_')
-    os.makedirs(work, exist_ok=True)
-    config = os.path.join(work, 'rosconsole.config')
-    with open(config, 'w') as f:
-        f.write('log4j.logger.ros=INFO\nlog4j.logger.ros.%s=DEBUG\n' % PACKAGE)
-    args = ['_known_init_poses:=false'] + ['_%s:=%s' % kv for kv in ESTIMATION_RATES.items()]
-    node_env = {'ROSCONSOLE_CONFIG_FILE': config, 'ROSCONSOLE_FORMAT': LOG_FORMAT,
-                'ROSCONSOLE_STDOUT_LINE_BUFFERED': '1'}
-    s = _Session(paths, None, max_seconds + 30.0, 0.0, work, False, args, node_env)
-    try:
-        if s.why:
-            return {'invalid': s.why}
-        got = []
-        t_end = s.t0 + max_seconds
-        while len(got) < cycles and time.time() < t_end:
-            if s.node.poll() is not None:
-                return {'invalid': 'm-explore\'s node exited (%s, see %s)' % (s.node.returncode, s.log.name)}
-            time.sleep(0.2)
-            with open(s.log.name) as f:
-                got = estimation_cycles(f, len(paths))
-        cpu, rss = _proc_figures(s.node.pid)
-    finally:
-        s.close()
-    if not got:
-        return {'invalid': 'no complete estimation cycle of m-explore with all %d maps within %.0f s: '
-                           'INVALID (%s)' % (len(paths), max_seconds, s.log.name)}
-    got = got[:cycles]
-    est = [c['estimate_ms'] for c in got]
-    return {'estimate_ms': float(statistics.median(est)), 'estimate_first_ms': est[0], 'estimate_runs_ms': est,
-            'cycle_ms': float(statistics.median(c['cycle_ms'] for c in got)), 'cycles': len(got),
-            'matched_cycles': sum(1 for c in got if c['matched']),
-            'rss_mb': rss, 'cpu_s': cpu, 'log': s.log.name}
 
 
 def _feed(spec_path):
@@ -416,13 +316,14 @@ def main(argv=None):
     ap.add_argument('--settle', type=float, default=10.0)
     ap.add_argument('--timeout', type=float, default=300.0)
     ap.add_argument('--estimate', action='store_true', help='time its estimation cycles (no merged map)')
-    ap.add_argument('--cycles', type=int, default=ESTIMATION_CYCLES)
+    ap.add_argument('--cycles', type=int, default=9)
     a = ap.parse_args(argv)
     if not available()[0]:
         print(available()[1], file=sys.stderr)
         return 3
     if a.estimate:
-        res = run_estimation(a.maps, cycles=a.cycles)
+        import peer_estimate
+        res = peer_estimate.run_estimation(a.maps, cycles=a.cycles)
         print(json.dumps(res))
         return 1 if 'invalid' in res else 0
     if not a.output:

@@ -67,9 +67,9 @@ def rows_table(rows, peer_note):
     if peer_note:
         out.append('NOTE: %s' % peer_note)
     cols = ('input', 'cells', 'N', 'feat/map ms', 'pair ms', 'est cold ms', 'est warm ms', 'compose+publ ms',
-            'one map chg ms', 'MRPT align s (run s)', 'ours/MRPT', 'm-explore est ms (1st)', 'ours/m-explore',
+            'one map chg ms', 'MRPT align s (run s)', 'ours/MRPT', 'm-explore est ms (1st)', 'ours/m-explore (ms)',
             'm-explore: first merged /map')
-    row = '%-16s %5s %3s | %-11s | %-8s | %-11s | %-11s | %-15s | %-14s | %-20s | %-9s | %-22s | %-14s | %s'
+    row = '%-16s %5s %3s | %-11s | %-8s | %-11s | %-11s | %-15s | %-14s | %-20s | %-9s | %-22s | %-19s | %s'
     h = row % cols
     out += ['', 'TIME  (ours: bench/ours.py, medians of fresh processes; est cold: a whole estimation '
             'cycle of a new merger; one map chg: compose + publish when one robot\'s map changed. MRPT: '
@@ -79,7 +79,8 @@ def rows_table(rows, peer_note):
             'to its first merged /map (discovery and estimation at 1 Hz), CPU s in brackets; m-explore est: '
             'its node\'s estimation cycle (estimateTransforms: features, every pair, placement; from scratch '
             'every cycle), timed by its own DEBUG lines, median of its cycles, the first in brackets; '
-            'ours/m-explore = est cold / m-explore est (< 1: we are faster))',
+            'ours/m-explore: ours\' cold cycle over m-explore\'s, alternated round after round in the same '
+            'minutes (bench/duel.py; < 1: we are faster), the two medians of those rounds in ms in brackets)',
             h, '-' * len(h)]
     for r in rows:
         o, m = r['ours'], r.get('mrpt') or {}
@@ -92,9 +93,13 @@ def rows_table(rows, peer_note):
         if 'invalid' not in (r.get('mexplore') or {'invalid': 1}):
             mx += ' (%.1f CPU s)' % r['mexplore']['cpu_s']
         est = r.get('mexplore_est') or r.get('mexplore') or {'invalid': '-'}
+        paired = r.get('mexplore_paired') or {}
         if est.get('estimate_ms') is not None:
             ecell = '%.0f (%.0f)' % (est['estimate_ms'], est['estimate_first_ms'])
-            eratio = _f(_r(o['cold_ms'], est['estimate_ms']), '%.2fx')
+            if paired.get('ratio') is not None:
+                eratio = '%.2fx (%.0f/%.0f)' % (paired['ratio'], paired['ours_ms'], paired['mexplore_ms'])
+            else:       # not paired: the two medians, taken minutes apart
+                eratio = _f(_r(o['cold_ms'], est['estimate_ms']), '%.2fx') + ' unpaired'
         else:
             ecell, eratio = (est.get('invalid') or '-')[:22], '-'
         out.append(row % (

@@ -25,10 +25,12 @@ import time
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 
+import duel  # noqa: E402
 import inputs  # noqa: E402
 import memtree  # noqa: E402
 import mrpt_merge  # noqa: E402
 import peer  # noqa: E402
+import peer_estimate  # noqa: E402
 import report  # noqa: E402
 import results  # noqa: E402
 
@@ -134,9 +136,39 @@ def run_mexplore(paths, root):
 
 
 def run_mexplore_estimate(paths, root):
-    """m-explore's cold estimation on ``paths`` (bench/peer.py run_estimation: its node's own
-    cycles, timed by its DEBUG lines): {'estimate_ms', 'estimate_first_ms', ...} or {'invalid': why}."""
-    return peer.run_estimation(paths, out_dir=tempfile.mkdtemp(prefix='mexplore_est_', dir=root))
+    """m-explore's cold estimation on ``paths`` (bench/peer_estimate.py run_estimation: its node's
+    own cycles, timed by its DEBUG lines): {'estimate_ms', 'estimate_first_ms', ...} or {'invalid': why}."""
+    return peer_estimate.run_estimation(paths, out_dir=tempfile.mkdtemp(prefix='mexplore_est_', dir=root))
+
+
+def pair_mexplore(paths, root, rounds):
+    """Ours' cold estimation and m-explore's, alternated round after round in the same minutes
+    (bench/duel.py: this shared machine's speed drifts by up to 2x over minutes): ours from
+    bench/ours.py --serve-estimate (a new merger each cycle, its pool warm), m-explore's node held
+    stopped between its cycles (peer_estimate.EstimateServer); one uncounted cycle of ours first
+    (m-explore's node has run cycles before it is ready). {'ours_ms', 'mexplore_ms' (medians over
+    the rounds), 'ratio' (median of the rounds' ours / m-explore), 'rounds', each round's figures}
+    or {'invalid': why}."""
+    spec = os.path.join(root, 'serve_%d.json' % len(os.listdir(root)))
+    with open(spec, 'w') as f:
+        json.dump({'paths': paths}, f)
+    ours = mx = None
+    try:
+        mx = peer_estimate.EstimateServer(paths, tempfile.mkdtemp(prefix='mexplore_pair_', dir=root))
+        if not mx.ready:
+            return {'invalid': mx.why}
+        ours = duel.Server([sys.executable, os.path.join(HERE, 'ours.py'), '--serve-estimate', spec])
+        ours.burst()
+        got = duel.duel(ours, {'mexplore': mx}, rounds, key='ms')
+    except RuntimeError as e:
+        return {'invalid': 'INVALID: %s' % e}
+    finally:
+        for side in (ours, mx):
+            if side is not None:
+                side.close()
+    m = got['mexplore']
+    return {'ours_ms': got['ours_ms'], 'mexplore_ms': m['ms'], 'ratio': m['ratio'], 'rounds': rounds,
+            'ours_rounds_ms': got['ours_rounds'], 'mexplore_rounds_ms': m['rounds'], 'ratios': m['ratios']}
 
 
 def run_soak(out, no_peer):
@@ -267,14 +299,19 @@ def main():
         else:
             mx = run_mexplore(paths, root)
             mx_est = run_mexplore_estimate(paths, root)
+        paired = {'invalid': mx_est['invalid']} if 'invalid' in mx_est else \
+            pair_mexplore(paths, root, 3 if big else duel.ROUNDS)
         rows.append({'name': name, 'kind': kind, 'robots': n, 'reps': reps, 'cycles': cycles, 'pairs': pairs,
-                     'ours': ours, 'mrpt': mrpt, 'mexplore': mx, 'mexplore_est': mx_est})
+                     'ours': ours, 'mrpt': mrpt, 'mexplore': mx, 'mexplore_est': mx_est, 'mexplore_paired': paired})
         print('.. %-16s ours: cold %7.0f ms (%.0f s)   MRPT: aligner %s s, whole run %s s (%.0f s)   m-explore: %s; '
               'its estimation %s'
               % (name, ours['cold_ms'], ours['bench_s'], report._f(mrpt.get('align_s'), '%.2f'),
                  report._f(mrpt.get('wall_s'), '%.2f'), mrpt['bench_s'],
                  peer.column(mx, 'first_map_s', '%.1f s to its first merged /map'),
                  peer.column(mx_est, 'estimate_ms', '%.0f ms (median of its cycles)')), flush=True)
+        if 'ratio' in paired:
+            print('   %-16s paired rounds: ours cold %.0f ms, m-explore estimation %.0f ms, ours/m-explore %.2fx'
+                  % ('', paired['ours_ms'], paired['mexplore_ms'], paired['ratio']), flush=True)
     text = report.rows_table(rows, note)
     print(text)
     if a.rows:

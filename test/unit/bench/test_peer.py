@@ -14,6 +14,7 @@ REPO = os.path.abspath(os.path.join(os.path.dirname(__file__), '..', '..', '..')
 sys.path.insert(0, os.path.join(REPO, 'bench'))
 
 import peer  # noqa: E402
+import peer_estimate  # noqa: E402
 
 
 def test_without_the_package_it_says_not_installed(monkeypatch):
@@ -30,7 +31,7 @@ def test_without_the_package_it_says_not_installed(monkeypatch):
 def test_without_the_package_its_estimation_says_not_installed(monkeypatch):
     monkeypatch.setattr(peer, 'PACKAGE', 'multirobot_map_merge_surely_absent')
     monkeypatch.setattr(peer, 'SETUP_WHY', '')
-    res = peer.run_estimation(['a.yaml', 'b.yaml'])
+    res = peer_estimate.run_estimation(['a.yaml', 'b.yaml'])
     assert res == {'invalid': peer.NOT_INSTALLED}
     assert peer.column(res, 'estimate_ms') == peer.NOT_INSTALLED
 
@@ -41,8 +42,8 @@ def test_a_setup_file_that_is_not_there_says_why(tmp_path, monkeypatch):
     assert why == 'MMM_MEXPLORE_SETUP=%s: no such file: m-explore not measured' % missing
     assert env['PATH'].startswith('/usr/bin:/bin:')
     monkeypatch.setattr(peer, 'SETUP_WHY', why)
-    assert peer.available() == (False, why)
-    assert peer.run_estimation(['a.yaml', 'b.yaml']) == {'invalid': why}
+    assert peer.available() == (False, why) and peer_estimate.available() == (False, why)
+    assert peer_estimate.run_estimation(['a.yaml', 'b.yaml']) == {'invalid': why}
 
 
 def test_a_setup_file_extends_the_environment(tmp_path):
@@ -66,7 +67,7 @@ def test_its_estimation_cycles_read_from_its_real_node():
     paths = sorted(glob.glob(os.path.join(inputs.DATA, 'tb3_house', 'tb3_*_map.yaml')))[:2]
     if len(paths) < 2:
         pytest.skip('../shared/data/tb3_house is absent')
-    res = peer.run_estimation(paths, cycles=3, max_seconds=60.0)
+    res = peer_estimate.run_estimation(paths, cycles=3, max_seconds=60.0)
     assert 'invalid' not in res, res
     assert res['cycles'] == 3 and len(res['estimate_runs_ms']) == 3
     assert res['estimate_first_ms'] == res['estimate_runs_ms'][0]
@@ -74,16 +75,17 @@ def test_its_estimation_cycles_read_from_its_real_node():
     assert res['estimate_ms'] <= res['cycle_ms'] + 1e-6 and res['rss_mb'] > 0
     with open(res['log']) as f:
         lines = f.readlines()
-    cycles = peer.estimation_cycles(lines, len(paths))
+    cycles = peer_estimate.estimation_cycles(lines, len(paths))
     assert [c['estimate_ms'] for c in cycles[:3]] == res['estimate_runs_ms']
-    times = [float(m.group(1)) for m in map(peer.LOG_LINE.search, lines) if m and m.group(2) == peer.MAP_RECEIVED]
+    times = [float(m.group(1)) for m in map(peer_estimate.LOG_LINE.search, lines)
+             if m and m.group(2) == peer_estimate.MAP_RECEIVED]
     assert len(times) >= len(paths)
     # only cycles that started with every map in count; each one's features before its end
     assert cycles[0]['start'] > times[len(paths) - 1]
     assert all(c['start'] <= c['features'] < c['end'] for c in cycles)
     assert all(a['end'] == b['start'] for a, b in zip(cycles, cycles[1:]))
     # with fewer maps than arrived, earlier cycles count too
-    assert len(peer.estimation_cycles(lines, 1)) >= len(cycles)
+    assert len(peer_estimate.estimation_cycles(lines, 1)) >= len(cycles)
 
 
 def test_on_this_machine_the_answer_matches_rospack():
@@ -104,11 +106,33 @@ def test_the_bench_tables_say_not_installed_in_every_mexplore_cell():
     text = report.rows_table(rows, peer.NOT_INSTALLED)
     lines = [ln for ln in text.splitlines() if ln.startswith('intel 4')]
     assert len(lines) == 2 and all(ln.endswith(peer.NOT_INSTALLED) for ln in lines)
+    assert '0.90 (2.00)' in lines[0] and '3 (1) / 3 (1)' in lines[1]
     assert peer.NOT_INSTALLED[:22] in lines[0]       # the m-explore est column, cut to its width
     rows[0]['mexplore_est'] = {'estimate_ms': 450.0, 'estimate_first_ms': 500.0}
     time_line = [ln for ln in report.rows_table(rows, '').splitlines() if ln.startswith('intel 4')][0]
-    assert '| 450 (500)              | 2.00x          |' in time_line
-    assert '0.90 (2.00)' in lines[0] and '3 (1) / 3 (1)' in lines[1]
+    assert '| 450 (500)              | 2.00x unpaired      |' in time_line
+    rows[0]['mexplore_paired'] = {'ratio': 1.5, 'ours_ms': 600.0, 'mexplore_ms': 400.0}
+    time_line = [ln for ln in report.rows_table(rows, '').splitlines() if ln.startswith('intel 4')][0]
+    assert '| 450 (500)              | 1.50x (600/400)     |' in time_line
+
+
+def test_its_estimation_paired_with_ours_round_after_round(tmp_path):
+    """Where m-explore's node is there: ours' cold cycle and its cycle alternated (run_bench.py
+    pair_mexplore), its node stopped between its cycles."""
+    ok, why = peer.available()
+    if not ok:
+        pytest.skip(why)
+    import inputs
+    import run_bench
+    paths = sorted(glob.glob(os.path.join(inputs.DATA, 'tb3_house', 'tb3_*_map.yaml')))[:2]
+    if len(paths) < 2:
+        pytest.skip('../shared/data/tb3_house is absent')
+    res = run_bench.pair_mexplore(paths, str(tmp_path), 3)
+    assert 'invalid' not in res, res
+    assert len(res['ours_rounds_ms']) == len(res['mexplore_rounds_ms']) == len(res['ratios']) == 3
+    assert all(ms > 0 for ms in res['ours_rounds_ms'] + res['mexplore_rounds_ms'])
+    assert res['ratio'] == sorted(res['ratios'])[1]
+    assert abs(res['ratios'][0] - res['ours_rounds_ms'][0] / res['mexplore_rounds_ms'][0]) < 1e-9
 
 
 def test_scale_says_what_the_node_gave():
