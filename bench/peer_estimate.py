@@ -37,6 +37,8 @@ LOG_LINE = re.compile(r'MMMT (\d+\.\d+) +[A-Z]+ (.*?)(?:\x1b\[0m)?$')
 # the node's rates for the estimation run (Hz): cycles back to back, no compositing in between
 ESTIMATION_RATES = {'discovery_rate': 1.0, 'estimation_rate': 100.0, 'merging_rate': 0.01}
 ESTIMATION_CYCLES = 9   # as many as ours' 3 processes x 3 cycles on the small rows
+SERVER_SECONDS = 86400.0      # the maps' feeder of an EstimateServer: until it is closed
+FIRST_CYCLE_SECONDS = 600.0   # the longest wait for a first cycle with every map (16 robots: about a minute)
 
 
 def estimation_cycles(lines, robots):
@@ -68,7 +70,7 @@ def estimation_cycles(lines, robots):
 
 def start(paths, max_seconds, work):
     """m-explore's node on ``paths`` as this module runs it (DEBUG lines with the wall time,
-    ESTIMATION_RATES), for at most ``max_seconds``: a peer.Session (its ``why`` set when it did
+    ESTIMATION_RATES), its maps' feeder for at most ``max_seconds`` + 30 s: a peer.Session (its ``why`` set when it did
     not start)."""
     os.makedirs(work, exist_ok=True)
     config = os.path.join(work, 'rosconsole.config')
@@ -89,22 +91,22 @@ def run_estimation(paths, cycles=None, max_seconds=120.0, out_dir=None):
     """m-explore's cold estimation on the maps ``paths``, timed from its own log (see the
     module's docstring): its node started with ``known_init_poses`` false and ESTIMATION_RATES,
     stopped after ``cycles`` (ESTIMATION_CYCLES when None) complete cycles with every map (or
-    after ``max_seconds``, with at least one). Returns {'estimate_ms': median over the cycles,
-    'estimate_first_ms': the first cycle with every map, 'estimate_runs_ms', 'cycle_ms' (median,
-    with taking and feeding the grids), 'cycles', 'matched_cycles' (cycles that found maps
-    matched), 'rss_mb', 'cpu_s' (the node's, at its end), 'log'} or {'invalid': why}; times in
-    ms of the wall clock."""
+    after ``max_seconds`` with at least one; the first is waited for up to FIRST_CYCLE_SECONDS).
+    Returns {'estimate_ms': median over the cycles, 'estimate_first_ms': the first cycle with
+    every map, 'estimate_runs_ms', 'cycle_ms' (median, with taking and feeding the grids),
+    'cycles', 'matched_cycles' (cycles that found maps matched), 'rss_mb', 'cpu_s' (the node's,
+    at its end), 'log'} or {'invalid': why}; times in ms of the wall clock."""
     ok, why = peer.available()
     if not ok:
         return {'invalid': why}
     cycles = cycles or ESTIMATION_CYCLES
-    s = start(paths, max_seconds, out_dir or tempfile.mkdtemp(prefix='mmm_mexplore_est_'))
+    s = start(paths, max(max_seconds, FIRST_CYCLE_SECONDS), out_dir or tempfile.mkdtemp(prefix='mmm_mexplore_est_'))
     try:
         if s.why:
             return {'invalid': s.why}
         got = []
-        t_end = s.t0 + max_seconds
-        while len(got) < cycles and time.time() < t_end:
+        t_end, t_last = s.t0 + max_seconds, s.t0 + max(max_seconds, FIRST_CYCLE_SECONDS)
+        while len(got) < cycles and time.time() < (t_end if got else t_last):
             if s.node.poll() is not None:
                 return {'invalid': 'm-explore\'s node exited (%s, see %s)' % (s.node.returncode, s.log.name)}
             time.sleep(0.2)
@@ -114,7 +116,7 @@ def run_estimation(paths, cycles=None, max_seconds=120.0, out_dir=None):
         s.close()
     if not got:
         return {'invalid': 'no complete estimation cycle of m-explore with all %d maps within %.0f s: '
-                           'INVALID (%s)' % (len(paths), max_seconds, s.log.name)}
+                           'INVALID (%s)' % (len(paths), max(max_seconds, FIRST_CYCLE_SECONDS), s.log.name)}
     got = got[:cycles]
     est = [c['estimate_ms'] for c in got]
     return {'estimate_ms': float(statistics.median(est)), 'estimate_first_ms': est[0], 'estimate_runs_ms': est,
@@ -127,20 +129,23 @@ class EstimateServer:
     """m-explore's side of bench/duel.py: its node, held stopped (SIGSTOP) between bursts; a burst
     lets it run (SIGCONT) until one estimation cycle that started after it resumed has ended,
     then stops it again, and returns {'ms': that cycle's estimate_ms, 'matched': ...}. The cycle
-    in progress when it was stopped, which spans the pause, never counts. ``ready`` is False with
+    in progress when it was stopped, which spans the pause, never counts: a burst takes up to two
+    cycles, and fails after 3 times the first cycle's length + 60 s. ``ready`` is False with
     ``why`` when the node gave no cycle with every map within ``max_seconds``."""
 
-    def __init__(self, paths, work, max_seconds=120.0, burst_seconds=120.0):
-        self.robots, self.burst_seconds = len(paths), burst_seconds
-        self.s = start(paths, max_seconds, work)
+    def __init__(self, paths, work, max_seconds=FIRST_CYCLE_SECONDS):
+        self.robots, self.burst_seconds = len(paths), 120.0
+        self.s = start(paths, SERVER_SECONDS, work)
         self.ready, self.why = False, self.s.why
         if self.why:
             return
         t_end = self.s.t0 + max_seconds
         while time.time() < t_end and self.s.node.poll() is None:
-            if _cycles(self.s, self.robots):
+            got = _cycles(self.s, self.robots)
+            if got:
                 self.s.node.send_signal(signal.SIGSTOP)
                 self.ready = True
+                self.burst_seconds = 3 * got[0]['cycle_ms'] / 1000.0 + 60.0
                 return
             time.sleep(0.05)
         self.why = 'no estimation cycle of m-explore with all %d maps within %.0f s (%s)' % (
