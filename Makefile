@@ -103,7 +103,11 @@ clean:
 # writes bench/results/{bench.json,bench.png,live.json}. MRPT's CGridMapAligner (libmrpt-dev, Debian)
 # through the project's own driver bench/mrpt_grid_align.cpp, which bench/mrpt_merge.py builds with
 # g++ on first use into /tmp/mmm_mrpt_grid_align; m-explore's map_merge node only where it is
-# installed (Ubuntu: ros-noetic-multirobot-map-merge), else its columns say "not installed".
+# installed (Ubuntu: ros-noetic-multirobot-map-merge) or where MMM_MEXPLORE_SETUP names the
+# devel/setup.bash of a workspace holding it (Debian 12: built by hand outside the repository,
+# e.g. by /dev/shm/mexplore/build.sh; bench/README.md), else its columns say "not installed".
+# Beside its first merged /map, its cold estimation cycle timed by its own DEBUG lines
+# (m-explore est ms, ours/m-explore). E.g. make bench MMM_MEXPLORE_SETUP=/dev/shm/mexplore/ws/devel/setup.bash
 # (python3-matplotlib, for its plot, is one of APT_PKGS: build installs it)
 # Then bench/scale.py: teams of 8-64 robots whose maps grow live, merged in real time (about 15 min;
 # bench/results/scale.{json,txt}). Then bench/cluster_overhead.py: ms per pair through the local pool

@@ -157,8 +157,10 @@ def serve(spec):
 
 def serve_estimate(spec):
     """Start the worker pool, print {"ready": true}, then for every line read on stdin one cold
-    estimation cycle (a new MapMerger holding every map, as in main()), printed as {"ms": ...,
-    "placed": ...}: bench/tools/versus.py alternates these cycles with another commit's (bench/duel.py)."""
+    estimation cycle (a new MapMerger holding every map, as in main(): the node's, with
+    ``defer_refinement``), printed as {"ms": ...,
+    "placed": ...}: bench/tools/versus.py alternates these cycles with another commit's (bench/duel.py),
+    run_bench.py with m-explore's."""
     from multi_map_merge.core.config import MergeConfig
     from multi_map_merge.core.mapio import load_map
     from multi_map_merge.core.merger import MapMerger
@@ -171,7 +173,7 @@ def serve_estimate(spec):
         for k, g in enumerate(grids):
             m.update_map('r%02d' % k, g)
         t = time.perf_counter()
-        m.estimate()
+        m.estimate(defer_refinement=True)
         ms = (time.perf_counter() - t) * 1000.0
         print(json.dumps({'ms': ms, 'placed': len(m.placements()) - 1}), flush=True)
 

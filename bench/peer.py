@@ -13,6 +13,12 @@ estimates the transforms itself, as ours does) or true with each robot's
 is read. Figures: the time from the node's start to its first merged ``/map`` (m-explore publishes
 one only once it has placed two maps or more), the CPU seconds of its process by then and its peak
 RSS (VmHWM). A run that saw no ``/map`` in time says INVALID with why, not a number.
+
+Its cold estimation: ``peer_estimate.py``.
+
+Where it is: ``rospack find multirobot_map_merge`` in this process's environment, or in the
+catkin workspace whose setup file ``MMM_MEXPLORE_SETUP`` names (sourced with ``--extend`` over this
+environment): a build by hand where no package has it (Debian 12), kept out of the repository.
 """
 from __future__ import annotations
 
@@ -30,7 +36,31 @@ from multi_map_merge.lab import processes
 
 PACKAGE, NODE = 'multirobot_map_merge', 'map_merge'
 NOT_INSTALLED = 'm-explore not installed (ros-noetic-multirobot-map-merge): not measured'
-ENV = dict(os.environ, PATH='/usr/bin:/bin:' + os.environ.get('PATH', ''))
+SETUP_VAR = 'MMM_MEXPLORE_SETUP'     # a catkin setup.bash of a workspace holding multirobot_map_merge
+
+
+def mexplore_env(setup=None, base=None):
+    """(environment, why not): ``base`` (this process's environment, /usr/bin first on PATH)
+    extended by the catkin ``setup`` file (``source setup --extend``: m-explore's package found by
+    rospack and catkin_find, this workspace's paths kept); why is '' or says what went wrong
+    with ``setup``, whose environment then is ``base``'s."""
+    base = dict(os.environ if base is None else base)
+    base['PATH'] = '/usr/bin:/bin:' + base.get('PATH', '')
+    if not setup:
+        return base, ''
+    if not os.path.isfile(setup):
+        return base, '%s=%s: no such file: m-explore not measured' % (SETUP_VAR, setup)
+    r = subprocess.run(['bash', '-c', 'source "$0" --extend >/dev/null && env -0', setup],
+                       capture_output=True, env=base)
+    if r.returncode != 0:
+        return base, '%s=%s: sourcing it failed (%s): m-explore not measured' % (
+            SETUP_VAR, setup, r.stderr.decode(errors='replace').strip()[-200:])
+    env = dict(kv.split('=', 1) for kv in r.stdout.decode(errors='replace').split('\0') if '=' in kv)
+    env.pop('_', None)
+    return env, ''
+
+
+ENV, SETUP_WHY = mexplore_env(os.environ.get(SETUP_VAR))
 PORTS = range(12500, 12600)
 # the node's rates (Hz): discovery of robots' topics, estimation, merging; its defaults (0.05,
 # 0.5, 4) would make the first discovery alone wait 20 s
@@ -55,6 +85,8 @@ def node_path():
 
 def available():
     """(True, '') or (False, why): m-explore's node is installed."""
+    if SETUP_WHY:
+        return False, SETUP_WHY
     r = subprocess.run(['rospack', 'find', PACKAGE], capture_output=True, text=True, env=ENV)
     if r.returncode != 0:
         return False, NOT_INSTALLED
@@ -79,7 +111,7 @@ def _listening(port):
         return s.connect_ex(('127.0.0.1', port)) == 0
 
 
-def _proc_figures(pid):
+def proc_figures(pid):
     """(CPU s, peak RSS MB) of a live process, from /proc."""
     with open('/proc/%d/stat' % pid) as f:
         fields = f.read().rsplit(')', 1)[1].split()
@@ -107,6 +139,58 @@ def _stop(p, group=False):
             p.wait()
 
 
+class Session:
+    """A master of its own, the maps' feeder (their params set, maps latched) and m-explore's
+    node started with ``node_args`` and ``node_env``; everything stopped by ``close``. ``why``
+    is '' or why it did not start (then the node was not started)."""
+
+    def __init__(self, paths, poses, timeout, settle, work, wait_map, node_args, node_env=None):
+        self.work, self.why = work, ''
+        self.node = self.feeder = None
+        port = free_port()
+        env = dict(ENV, ROS_MASTER_URI='http://127.0.0.1:%d' % port, ROS_IP='127.0.0.1',
+                   ROS_HOME=os.path.join(work, 'ros_home'))
+        env.pop('ROS_HOSTNAME', None)
+        self.log = open(os.path.join(work, 'mexplore.log'), 'w')
+        self.master = subprocess.Popen(['rosmaster', '--core', '-p', str(port)], stdout=self.log,
+                                       stderr=subprocess.STDOUT, env=env, start_new_session=True)
+        self.result = os.path.join(work, 'first_map.json')
+        self.stop_file = os.path.join(work, 'feed.stop')
+        t_end = time.time() + 20
+        while not _listening(port):                    # the master is up
+            if self.master.poll() is not None or time.time() > t_end:
+                self.why = 'the master did not start on port %d (%s)' % (port, self.log.name)
+                return
+            time.sleep(0.1)
+        spec = os.path.join(work, 'feed.json')
+        with open(spec, 'w') as f:
+            json.dump({'paths': [os.path.abspath(p) for p in paths], 'poses': poses, 'timeout': timeout,
+                       'settle': settle, 'result': self.result, 'wait_map': wait_map, 'stop': self.stop_file,
+                       'merged_yaml': os.path.join(work, 'merged.yaml')}, f)
+        self.feeder = subprocess.Popen([sys.executable, os.path.abspath(__file__), '--feed', spec],
+                                       stdout=self.log, stderr=subprocess.STDOUT, env=env)
+        ready = os.path.join(work, 'feed.ready')
+        t_end = time.time() + 60
+        while not os.path.exists(ready):           # params set, maps latched
+            if self.feeder.poll() is not None or time.time() > t_end:
+                self.why = 'the maps\' feeder did not start (%s)' % self.log.name
+                return
+            time.sleep(0.1)
+        self.t0 = time.time()
+        self.node = subprocess.Popen([node_path()] + node_args, stdout=self.log, stderr=subprocess.STDOUT,
+                                     env=dict(env, **(node_env or {})))
+        with open(os.path.join(work, 'node_start'), 'w') as f:
+            f.write(repr(self.t0))
+
+    def close(self):
+        open(self.stop_file, 'w').close()
+        for p in (self.node, self.feeder):
+            if p is not None:
+                _stop(p)
+        _stop(self.master, group=True)
+        self.log.close()
+
+
 def run_node(paths, poses=None, timeout=120.0, settle=0.0, out_dir=None):
     """m-explore's node on the maps ``paths`` (map_server yaml files; robot k publishes
     ``paths[k]`` on /robot_k/map). ``poses``: None (``known_init_poses`` false) or [x, y, yaw]
@@ -116,63 +200,31 @@ def run_node(paths, poses=None, timeout=120.0, settle=0.0, out_dir=None):
     ok, why = available()
     if not ok:
         return {'invalid': why}
-    exe = node_path()
     work = out_dir or tempfile.mkdtemp(prefix='mmm_mexplore_')
     os.makedirs(work, exist_ok=True)
-    port = free_port()
-    env = dict(ENV, ROS_MASTER_URI='http://127.0.0.1:%d' % port, ROS_IP='127.0.0.1',
-               ROS_HOME=os.path.join(work, 'ros_home'))
-    env.pop('ROS_HOSTNAME', None)
-    log = open(os.path.join(work, 'mexplore.log'), 'w')
-    master = subprocess.Popen(['rosmaster', '--core', '-p', str(port)], stdout=log, stderr=subprocess.STDOUT,
-                              env=env, start_new_session=True)
-    feeder = node = None
-    spec = os.path.join(work, 'feed.json')
-    result = os.path.join(work, 'first_map.json')
+    args = ['_known_init_poses:=%s' % ('false' if poses is None else 'true')] + [
+        '_%s:=%s' % kv for kv in RATES.items()]
+    s = Session(paths, poses, timeout, settle, work, True, args)
     try:
-        t_end = time.time() + 20
-        while not _listening(port):                    # the master is up
-            if master.poll() is not None or time.time() > t_end:
-                return {'invalid': 'the master did not start on port %d (%s)' % (port, log.name)}
-            time.sleep(0.1)
-        with open(spec, 'w') as f:
-            json.dump({'paths': [os.path.abspath(p) for p in paths], 'poses': poses, 'timeout': timeout,
-                       'settle': settle, 'result': result, 'merged_yaml': os.path.join(work, 'merged.yaml')}, f)
-        feeder = subprocess.Popen([sys.executable, os.path.abspath(__file__), '--feed', spec], stdout=log,
-                                  stderr=subprocess.STDOUT, env=env)
-        ready = os.path.join(work, 'feed.ready')
-        t_end = time.time() + 60
-        while not os.path.exists(ready):           # params set, maps latched
-            if feeder.poll() is not None or time.time() > t_end:
-                return {'invalid': 'the maps\' feeder did not start (%s)' % log.name}
-            time.sleep(0.1)
-        args = [exe, '_known_init_poses:=%s' % ('false' if poses is None else 'true')] + [
-            '_%s:=%s' % kv for kv in RATES.items()]
-        t0 = time.time()
-        node = subprocess.Popen(args, stdout=log, stderr=subprocess.STDOUT, env=env)
-        with open(os.path.join(work, 'node_start'), 'w') as f:
-            f.write(repr(t0))
+        if s.why:
+            return {'invalid': s.why}
         figures = None
-        while feeder.poll() is None:
-            if node.poll() is not None:
-                return {'invalid': 'm-explore\'s node exited (%s, see %s)' % (node.returncode, log.name)}
-            if figures is None and os.path.exists(result + '.first'):
-                figures = _proc_figures(node.pid)     # at its first merged map
+        while s.feeder.poll() is None:
+            if s.node.poll() is not None:
+                return {'invalid': 'm-explore\'s node exited (%s, see %s)' % (s.node.returncode, s.log.name)}
+            if figures is None and os.path.exists(s.result + '.first'):
+                figures = proc_figures(s.node.pid)     # at its first merged map
             time.sleep(0.05)
-        if not os.path.exists(result):
-            return {'invalid': 'no merged /map from m-explore within %.0f s: INVALID (%s)' % (timeout, log.name)}
-        with open(result) as f:
+        if not os.path.exists(s.result):
+            return {'invalid': 'no merged /map from m-explore within %.0f s: INVALID (%s)' % (timeout, s.log.name)}
+        with open(s.result) as f:
             got = json.load(f)
-        cpu_end, rss = _proc_figures(node.pid)
+        cpu_end, rss = proc_figures(s.node.pid)
         cpu_first = figures[0] if figures else cpu_end
-        return {'first_map_s': got['first_t'] - t0, 'cpu_s': cpu_first, 'cpu_end_s': cpu_end, 'rss_mb': rss,
-                'merged_yaml': got.get('merged_yaml'), 'maps_seen': got['count'], 'log': log.name}
+        return {'first_map_s': got['first_t'] - s.t0, 'cpu_s': cpu_first, 'cpu_end_s': cpu_end, 'rss_mb': rss,
+                'merged_yaml': got.get('merged_yaml'), 'maps_seen': got['count'], 'log': s.log.name}
     finally:
-        for p in (node, feeder):
-            if p is not None:
-                _stop(p)
-        _stop(master, group=True)
-        log.close()
+        s.close()
 
 
 def _feed(spec_path):
@@ -219,8 +271,14 @@ def _feed(spec_path):
     open(os.path.join(os.path.dirname(spec_path), 'feed.ready'), 'w').close()
     start = os.path.join(os.path.dirname(spec_path), 'node_start')
     while not os.path.exists(start):
+        if os.path.exists(spec['stop']):
+            return 1
         time.sleep(0.05)
     t_end = float(open(start).read()) + spec['timeout']
+    if not spec['wait_map']:            # the maps latched until the measurement ends
+        while time.time() < t_end and not os.path.exists(spec['stop']):
+            time.sleep(0.05)
+        return 0
     while time.time() < t_end and (got['first_t'] is None or time.time() < got['first_t'] + spec['settle']):
         time.sleep(0.05)
     if got['first_t'] is None:
@@ -248,18 +306,28 @@ def main(argv=None):
     """``peer.py A.yaml B.yaml ... -o merged.yaml [--settle S] [--timeout S]``: m-explore's node on
     the maps (known_init_poses false), its last merged /map ``settle`` s after its first saved as
     merged.yaml, its figures printed as one JSON line; exit 3 when it is not installed, 1 when it
-    gave no merged map."""
+    gave no merged map. ``peer.py A.yaml B.yaml ... --estimate [--cycles N]``: its estimation
+    cycles instead (run_estimation), one JSON line."""
     import argparse
     import shutil
     ap = argparse.ArgumentParser(description=main.__doc__.split('\n\n')[0])
     ap.add_argument('maps', nargs='+')
-    ap.add_argument('-o', '--output', required=True)
+    ap.add_argument('-o', '--output')
     ap.add_argument('--settle', type=float, default=10.0)
     ap.add_argument('--timeout', type=float, default=300.0)
+    ap.add_argument('--estimate', action='store_true', help='time its estimation cycles (no merged map)')
+    ap.add_argument('--cycles', type=int, default=9)
     a = ap.parse_args(argv)
     if not available()[0]:
         print(available()[1], file=sys.stderr)
         return 3
+    if a.estimate:
+        import peer_estimate
+        res = peer_estimate.run_estimation(a.maps, cycles=a.cycles)
+        print(json.dumps(res))
+        return 1 if 'invalid' in res else 0
+    if not a.output:
+        ap.error('-o/--output is required (or --estimate)')
     res = run_node(a.maps, timeout=a.timeout, settle=a.settle)
     print(json.dumps(res))
     if 'invalid' in res:

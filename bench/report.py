@@ -67,14 +67,20 @@ def rows_table(rows, peer_note):
     if peer_note:
         out.append('NOTE: %s' % peer_note)
     cols = ('input', 'cells', 'N', 'feat/map ms', 'pair ms', 'est cold ms', 'est warm ms', 'compose+publ ms',
-            'one map chg ms', 'MRPT align s (run s)', 'ours/MRPT', 'm-explore: first merged /map')
-    h = '%-16s %5s %3s | %-11s | %-8s | %-11s | %-11s | %-15s | %-14s | %-20s | %-9s | %s' % cols
+            'one map chg ms', 'MRPT align s (run s)', 'ours/MRPT', 'm-explore est ms (1st)', 'ours/m-explore (ms)',
+            'm-explore: first merged /map')
+    row = '%-16s %5s %3s | %-11s | %-8s | %-11s | %-11s | %-15s | %-14s | %-20s | %-9s | %-22s | %-19s | %s'
+    h = row % cols
     out += ['', 'TIME  (ours: bench/ours.py, medians of fresh processes; est cold: a whole estimation '
             'cycle of a new merger; one map chg: compose + publish when one robot\'s map changed. MRPT: '
             'CGridMapAligner on every pair (bench/mrpt_merge.py, seed 1): its aligner process (maps read, '
             'features, every pair) in s, the whole run (Python start, map I/O, compositing) in brackets; '
             'ours/MRPT = est cold / MRPT align (< 1: we are faster). m-explore: its node, from its start '
-            'to its first merged /map (discovery and estimation at 1 Hz), CPU s in brackets)',
+            'to its first merged /map (discovery and estimation at 1 Hz), CPU s in brackets; m-explore est: '
+            'its node\'s estimation cycle (estimateTransforms: features, every pair, placement; from scratch '
+            'every cycle), timed by its own DEBUG lines, median of its cycles, the first in brackets; '
+            'ours/m-explore: ours\' cold cycle over m-explore\'s, alternated round after round in the same '
+            'minutes (bench/duel.py; < 1: we are faster), the two medians of those rounds in ms in brackets)',
             h, '-' * len(h)]
     for r in rows:
         o, m = r['ours'], r.get('mrpt') or {}
@@ -86,10 +92,21 @@ def rows_table(rows, peer_note):
         mx = mexplore_cell(r, 'first_map_s', '%.1f s')
         if 'invalid' not in (r.get('mexplore') or {'invalid': 1}):
             mx += ' (%.1f CPU s)' % r['mexplore']['cpu_s']
-        out.append('%-16s %5s %3d | %-11s | %-8s | %-11s | %-11s | %-15s | %-14s | %-20s | %-9s | %s' % (
+        est = r.get('mexplore_est') or r.get('mexplore') or {'invalid': '-'}
+        paired = r.get('mexplore_paired') or {}
+        if est.get('estimate_ms') is not None:
+            ecell = '%.0f (%.0f)' % (est['estimate_ms'], est['estimate_first_ms'])
+            if paired.get('ratio') is not None:
+                eratio = '%.2fx (%.0f/%.0f)' % (paired['ratio'], paired['ours_ms'], paired['mexplore_ms'])
+            else:       # not paired: the two medians, taken minutes apart
+                eratio = _f(_r(o['cold_ms'], est['estimate_ms']), '%.2fx') + ' unpaired'
+        else:
+            ecell, eratio = (est.get('invalid') or '-')[:22], '-'
+        out.append(row % (
             r['name'], '%dk' % (o['map_cells'] // 1000), r['robots'], _f(o['features_ms'], '%.1f'),
             _f(o['pair_ms']), _f(o['cold_ms']), _f(o['warm_ms'], '%.2f'),
-            _f(o['compose_ms'] + o['publish_ms'], '%.1f'), _f(o.get('live_ms'), '%.1f'), mcell, ratio, mx))
+            _f(o['compose_ms'] + o['publish_ms'], '%.1f'), _f(o.get('live_ms'), '%.1f'), mcell, ratio,
+            ecell, eratio, mx))
     h = '%-16s %3s | %-24s | %-8s | %-17s | %-30s | %-30s | %s' % (
         'input', 'N', 'ours MB (node alone)', 'MRPT MB', 'placed (ok)', 'max error: ours', 'MRPT', 'm-explore MB')
     out += ['', 'MEMORY AND CORRECTNESS  (placed: robots put in the merged frame besides the reference, ours / '
@@ -137,6 +154,7 @@ def plot(rows, path):
     series(ax[0], sweep, n, 'ours', 'warm_ms', 'd-', 'ours: estimation, warm')
     series(ax[0], sweep, n, 'mrpt', 'align_s', 'o--', 'MRPT: every pair aligned', 1000.0)
     series(ax[0], sweep, n, 'mexplore', 'first_map_s', 'o:', 'm-explore: to its first merged /map', 1000.0)
+    series(ax[0], sweep, n, 'mexplore_est', 'estimate_ms', 's:', 'm-explore: estimation cycle')
     ax[0].set_xscale('log', base=2)
     ax[0].set_xlabel('robots (intel-sized maps, all overlapping)')
     ax[0].set_title('time against robot count')

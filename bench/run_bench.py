@@ -25,11 +25,13 @@ import time
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 
+import duel  # noqa: E402
 import first_tf  # noqa: E402
 import inputs  # noqa: E402
 import memtree  # noqa: E402
 import mrpt_merge  # noqa: E402
 import peer  # noqa: E402
+import peer_estimate  # noqa: E402
 import report  # noqa: E402
 import results  # noqa: E402
 
@@ -135,6 +137,42 @@ def run_mexplore(paths, root):
     return peer.run_node(paths, out_dir=tempfile.mkdtemp(prefix='mexplore_', dir=root))
 
 
+def run_mexplore_estimate(paths, root):
+    """m-explore's cold estimation on ``paths`` (bench/peer_estimate.py run_estimation: its node's
+    own cycles, timed by its DEBUG lines): {'estimate_ms', 'estimate_first_ms', ...} or {'invalid': why}."""
+    return peer_estimate.run_estimation(paths, out_dir=tempfile.mkdtemp(prefix='mexplore_est_', dir=root))
+
+
+def pair_mexplore(paths, root, rounds):
+    """Ours' cold estimation and m-explore's, alternated round after round in the same minutes
+    (bench/duel.py: this shared machine's speed drifts by up to 2x over minutes): ours from
+    bench/ours.py --serve-estimate (a new merger each cycle, its pool warm), m-explore's node held
+    stopped between its cycles (peer_estimate.EstimateServer); one uncounted cycle of ours first
+    (m-explore's node has run cycles before it is ready). {'ours_ms', 'mexplore_ms' (medians over
+    the rounds), 'ratio' (median of the rounds' ours / m-explore), 'rounds', each round's figures}
+    or {'invalid': why}."""
+    spec = os.path.join(root, 'serve_%d.json' % len(os.listdir(root)))
+    with open(spec, 'w') as f:
+        json.dump({'paths': paths}, f)
+    ours = mx = None
+    try:
+        mx = peer_estimate.EstimateServer(paths, tempfile.mkdtemp(prefix='mexplore_pair_', dir=root))
+        if not mx.ready:
+            return {'invalid': mx.why}
+        ours = duel.Server([sys.executable, os.path.join(HERE, 'ours.py'), '--serve-estimate', spec])
+        ours.burst()
+        got = duel.duel(ours, {'mexplore': mx}, rounds, key='ms')
+    except RuntimeError as e:
+        return {'invalid': 'INVALID: %s' % e}
+    finally:
+        for side in (ours, mx):
+            if side is not None:
+                side.close()
+    m = got['mexplore']
+    return {'ours_ms': got['ours_ms'], 'mexplore_ms': m['ms'], 'ratio': m['ratio'], 'rounds': rounds,
+            'ours_rounds_ms': got['ours_rounds'], 'mexplore_rounds_ms': m['rounds'], 'ratios': m['ratios']}
+
+
 def run_soak(out, no_peer):
     """bench/soak.py (the live node's memory, CPU and threads over 30 robot minutes at 10x; its
     own roscore), in its own process: {'text': its summary, 'json': results/soak.json} or why not."""
@@ -166,6 +204,19 @@ def peers_state(a):
     return why, note
 
 
+def configurations(a):
+    """inputs.configurations, only the rows named by ``--rows`` when given (exits naming the rows
+    when one is unknown)."""
+    confs = inputs.configurations(a.quick)
+    if not a.rows:
+        return confs
+    names = [c[0] for c in confs]
+    unknown = [r for r in a.rows if r not in names]
+    if unknown:
+        raise SystemExit('no row %s (rows: %s)' % (', '.join(map(repr, unknown)), ', '.join(names)))
+    return [c for c in confs if c[0] in a.rows]
+
+
 def memory_only(a):
     """Each row's peak memory: ours (memory_ours) against MRPT's aligner and m-explore's node,
     measured one after the other on the same maps (memory does not depend on the load)."""
@@ -176,7 +227,7 @@ def memory_only(a):
     print('PEAK MEMORY  (ours: the node\'s process tree, pages counted once; RSS sum: each process\'s '
           'peak RSS summed, the old figure; MRPT: its aligner process\'s peak RSS; m-explore: its node\'s '
           'peak RSS)%s\n%s\n%s' % ('' if not note else '  NOTE: ' + note, h, '-' * len(h)), flush=True)
-    for name, _kind, gt in inputs.configurations(a.quick):
+    for name, _kind, gt in configurations(a):
         paths, truth = inputs.write_inputs(name.replace(' ', '_'), gt, root)
         n = len(paths)
         cycles = 1 if n > 8 or inputs.median_cells(paths) > 1_500_000 else 3
@@ -203,6 +254,9 @@ def main():
     ap.add_argument('--memory-only', action='store_true',
                     help='only the memory: the node\'s tree against the peers (about 3 min); '
                          'prints the table, writes nothing')
+    ap.add_argument('--rows', action='append', metavar='NAME',
+                    help="only these rows ('house 4', 'intel-sized x8'...; repeat for more); nothing of the "
+                         'run is written but its table (a partial run must not stand for the whole)')
     ap.add_argument('--out', default=os.path.join(HERE, 'results'))
     a = ap.parse_args()
     if a.memory_only:
@@ -214,7 +268,7 @@ def main():
         print('NOTE:', note, flush=True)
     root = tempfile.mkdtemp(prefix='mmm_bench_')
     rows = []
-    for name, kind, gt in inputs.configurations(a.quick):
+    for name, kind, gt in configurations(a):
         paths, truth = inputs.write_inputs(name.replace(' ', '_'), gt, root)
         n = len(paths)
         reps = 3 if n <= 16 else 1    # fresh processes for ours
@@ -243,19 +297,30 @@ def main():
                 mrpt = {'skipped': 'INVALID: %s' % e}
         mrpt['bench_s'] = time.time() - t0
         if why['mexplore']:
-            mx = {'invalid': why['mexplore']}
+            mx = mx_est = {'invalid': why['mexplore']}
         elif n > a.peer_max_robots:
-            mx = {'invalid': above}
+            mx = mx_est = {'invalid': above}
         else:
             mx = run_mexplore(paths, root)
+            mx_est = run_mexplore_estimate(paths, root)
+        paired = {'invalid': mx_est['invalid']} if 'invalid' in mx_est else \
+            pair_mexplore(paths, root, 3 if big else duel.ROUNDS)
         rows.append({'name': name, 'kind': kind, 'robots': n, 'reps': reps, 'cycles': cycles, 'pairs': pairs,
-                     'ours': ours, 'mrpt': mrpt, 'mexplore': mx})
-        print('.. %-16s ours: cold %7.0f ms (%.0f s)   MRPT: aligner %s s, whole run %s s (%.0f s)   m-explore: %s'
+                     'ours': ours, 'mrpt': mrpt, 'mexplore': mx, 'mexplore_est': mx_est, 'mexplore_paired': paired})
+        print('.. %-16s ours: cold %7.0f ms (%.0f s)   MRPT: aligner %s s, whole run %s s (%.0f s)   m-explore: %s; '
+              'its estimation %s'
               % (name, ours['cold_ms'], ours['bench_s'], report._f(mrpt.get('align_s'), '%.2f'),
                  report._f(mrpt.get('wall_s'), '%.2f'), mrpt['bench_s'],
-                 peer.column(mx, 'first_map_s', '%.1f s to its first merged /map')), flush=True)
+                 peer.column(mx, 'first_map_s', '%.1f s to its first merged /map'),
+                 peer.column(mx_est, 'estimate_ms', '%.0f ms (median of its cycles)')), flush=True)
+        if 'ratio' in paired:
+            print('   %-16s paired rounds: ours cold %.0f ms, m-explore estimation %.0f ms, ours/m-explore %.2fx'
+                  % ('', paired['ours_ms'], paired['mexplore_ms'], paired['ratio']), flush=True)
     text = report.rows_table(rows, note) + first_tf_lines(rows)
     print(text)
+    if a.rows:
+        print('\n(--rows: a partial run, nothing written; run_bench took %.0f s)' % (time.time() - t_all))
+        return
     soak = None
     if not (a.quick or a.no_soak):
         soak = run_soak(a.out, a.no_peer)
