@@ -55,6 +55,8 @@ TOOL_SCRIPTS: Dict[str, Tuple[str, str]] = {
     'bend-check': ('bend_check.py', 'why a merge misses the world: rigid, bent, and bent onto the truth'),
     'pinning-sweep': ('pinning_sweep.py', "links' and placements' covariances on cut buildings"),
     'relay-rss': ('relay_rss.py', "the relays' memory on a robot"),
+    'own-map-turn': ('own_map_turn.py', "how far each robot's own rbpf_slam map sits turned and shifted from its "
+                                        'start, over seeds'),
     'mrpt-merge': ('mrpt_merge.py', "MRPT's grid map aligner behind merge_maps' interface (a peer)"),
     'peer': ('peer.py', "m-explore's map_merge node where installed (a peer)"),
     'timeline': ('timeline.py', 'coverage over time of one accuracy condition (accuracy runs it)'),

@@ -191,6 +191,8 @@ RbpfMapper::RbpfMapper(const Options& o) : options_(o)
 	motion_.gaussianModel.a2 = o.srt;
 	motion_.gaussianModel.a3 = o.str;
 	motion_.gaussianModel.a4 = o.stt;
+	motion_.gaussianModel.minStdXY = o.minStdXY;
+	motion_.gaussianModel.minStdPHI = o.minStdYaw;
 
 	const auto seed = o.seed != 0
 		? static_cast<std::uint32_t>(o.seed)

@@ -13,6 +13,7 @@
 #include <mrpt/bayes/CParticleFilter.h>
 #include <mrpt/obs/CActionRobotMovement2D.h>
 
+#include <cmath>
 #include <cstdint>
 #include <memory>
 
@@ -34,6 +35,8 @@ struct Options
 	// odometry error model, as gmapping's: srr translation from translation, srt translation
 	// from rotation, str rotation from translation, stt rotation from rotation
 	double srr = 0.1, srt = 0.2, str = 0.1, stt = 0.2;
+	// the least spread of the odometry's step, however short (MRPT's minStdXY, minStdPHI): m, rad
+	double minStdXY = 0.01, minStdYaw = 0.2 * M_PI / 180.0;
 	double sigma = 0.05;  //!< m: the scan likelihood's standard deviation (gmapping's sigma)
 	// a particle's scan match below this goodness (share of the scan's points matched, 0..1)
 	// is not trusted: the odometry places it instead

@@ -57,6 +57,8 @@ NodeSettings readSettings(ros::NodeHandle& pnh)
 	o.srt = number(pnh, "srt", 0.2, false);
 	o.str = number(pnh, "str", 0.1, false);
 	o.stt = number(pnh, "stt", 0.2, false);
+	o.minStdXY = number(pnh, "min_std_xy", o.minStdXY, true);
+	o.minStdYaw = number(pnh, "min_std_yaw", o.minStdYaw, true);
 	o.sigma = number(pnh, "sigma", 0.05, true);
 	o.matchMinGoodness = number(pnh, "match_min_goodness", 0.7, false);
 	o.matchSearchRadius = number(pnh, "match_search_radius", 0.3, true);

@@ -228,7 +228,7 @@ int main(int argc, char** argv)
 				"  map_frame -> odom_frame and the service dynamic_map. Private parameters (gmapping's names):\n"
 				"  base_frame odom_frame map_frame particles delta xmin ymin xmax ymax maxRange maxUrange\n"
 				"  linearUpdate angularUpdate temporalUpdate map_update_interval transform_publish_period\n"
-				"  srr srt str stt sigma match_min_goodness match_search_radius seed (docs/rbpf_slam.md)\n");
+				"  srr srt str stt min_std_xy min_std_yaw sigma match_min_goodness match_search_radius seed (docs/rbpf_slam.md)\n");
 			return 0;
 		}
 	ros::init(argc, argv, "rbpf_slam");
