@@ -48,6 +48,7 @@ def main(argv: List[str] = None) -> int:
     ap.add_argument('--work', default='/tmp/own_map_turn')
     ap.add_argument('--port', type=int, default=11620, help='first port of the roscores (each job its own 20)')
     ap.add_argument('--jobs', type=int, default=2)
+    ap.add_argument('--single', action='store_true', help="the lone robot's bag instead (the truth file's single)")
     a = ap.parse_args(argv)
     extra = {k: value(v) for k, v in (s.split('=', 1) for s in a.set)}
     truth_path = a.bag[:-len('.bag')] + '.truth.yaml'
@@ -58,9 +59,15 @@ def main(argv: List[str] = None) -> int:
         print('rbpf_slam_replay not found: make build, then source the workspace', file=sys.stderr)
         return 2
     tag = '_'.join('%s%s' % kv for kv in sorted(extra.items())) or 'config'
-    work = os.path.join(a.work, os.path.basename(a.bag)[:-4], tag)
+    work = os.path.join(a.work, os.path.basename(a.bag)[:-4] + ('_single' if a.single else ''), tag)
     os.makedirs(work, exist_ok=True)
-    robots = sorted(truth['robots'])
+    bag = a.bag
+    starts = {r: v['start'] for r, v in truth['robots'].items()}
+    if a.single:         # the lone robot: its own bag beside the truth file, under its robot's name
+        lone = truth['single']
+        bag = os.path.join(os.path.dirname(truth_path), lone['bag'])
+        starts = {lone['name']: lone['start']}
+    robots = sorted(starts)
     todo = [(r, s) for s in a.seeds for r in robots]
     results: Dict[Tuple[str, int], Tuple[float, float, float]] = {}
     lock = threading.Lock()
@@ -72,12 +79,12 @@ def main(argv: List[str] = None) -> int:
                     return
                 r, s = todo.pop(0)
             prefix = os.path.join(work, '%s_s%d' % (r, s))
-            meta = run_gmapping(exe, a.bag, '/%s/scan' % r, r, s, a.config, prefix, {}, 1800,
+            meta = run_gmapping(exe, bag, '/%s/scan' % r, r, s, a.config, prefix, {}, 1800,
                                 a.port + 20 * k, os.path.join(work, 'ros_home'), extra_params=extra, slam='rbpf')
             if meta.get('invalid'):
                 print('%s seed %d: %s' % (r, s, meta['invalid']), flush=True)
                 continue
-            start = se2(*truth['robots'][r]['start'])
+            start = se2(*starts[r])
             sc = score_map(load_map(prefix + '.yaml'), gt, start, 0.1)
             x, y, yaw = xyyaw(inverse(start) @ sc.T)       # the best fit in the start's frame
             res = (math.hypot(x, y), math.degrees(yaw), sc.fitness)
@@ -94,7 +101,7 @@ def main(argv: List[str] = None) -> int:
             t.join()
     finally:
         C.stop_all()
-    print('%s, %s %s, seeds %s' % (os.path.basename(a.bag), os.path.basename(a.config), extra or '', a.seeds))
+    print('%s, %s %s, seeds %s' % (os.path.basename(bag), os.path.basename(a.config), extra or '', a.seeds))
     worst_all = 0.0
     for r in robots:
         rs = [results[(r, s)] for s in a.seeds if (r, s) in results]
