@@ -125,6 +125,26 @@ class Roscore(processes.Roscore):
 
 # ------------------------------------------------------------------------------ scheduling
 
+def slam_job(case: Any, robot: str, slam: str, left: Dict[str, int], then: Callable[[], None]) -> Callable[[], None]:
+    """A scheduler job: ``case.gmapping(robot)``, ``case``'s SLAM run for one robot. A run that
+    fails leaves that robot's map INVALID with why (``case.gm[robot]``, under ``case.lock``); the
+    last of the case's ``left['n']`` SLAM jobs to end calls ``then`` (not while the run stops)."""
+    def job() -> None:
+        try:
+            case.gmapping(robot)
+        except Exception as e:                # noqa: BLE001 (the case says INVALID and why)
+            if not PROCS.stopping.is_set():
+                traceback.print_exc()
+            with case.lock:
+                case.gm[robot] = {'invalid': '%s run failed: %s: %s' % (SLAMS[slam]['label'], type(e).__name__, e)}
+        with case.lock:
+            left['n'] -= 1
+            last = left['n'] == 0
+        if last and not PROCS.stopping.is_set():
+            then()
+    return job
+
+
 class Scheduler:
     """At most ``jobs`` jobs at a time, the ready one of the earliest condition first."""
 

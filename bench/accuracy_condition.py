@@ -369,21 +369,7 @@ def plan(cond: Condition, sched: Scheduler) -> None:
     left = {'n': 1 + len(TEAM)}
 
     def gm(robot):
-        def job():
-            try:
-                cond.gmapping(robot)
-            except Exception as e:                # noqa: BLE001 (the row says INVALID and why)
-                if not C.PROCS.stopping.is_set():
-                    traceback.print_exc()
-                with cond.lock:
-                    cond.gm[robot] = {'invalid': '%s run failed: %s: %s' % (SLAMS[C.ARGS.slam]['label'],
-                                                                           type(e).__name__, e)}
-            with cond.lock:
-                left['n'] -= 1
-                last = left['n'] == 0
-            if last and not C.PROCS.stopping.is_set():
-                sched.submit((i, 0), cond.score)
-        return job
+        return C.slam_job(cond, robot, C.ARGS.slam, left, lambda: sched.submit((i, 0), cond.score))
 
     def bags():
         try:

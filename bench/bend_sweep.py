@@ -410,21 +410,7 @@ def plan(case: Case, sched: 'acc.Scheduler') -> None:
     left = {'n': case.n}
 
     def gm(robot):
-        def job():
-            try:
-                case.gmapping(robot)
-            except Exception as e:                # noqa: BLE001 (the case says INVALID and why)
-                if not acc.PROCS.stopping.is_set():
-                    traceback.print_exc()
-                with case.lock:
-                    case.gm[robot] = {'invalid': '%s run failed: %s: %s' % (acc.SLAMS[ARGS.slam]['label'],
-                                                                           type(e).__name__, e)}
-            with case.lock:
-                left['n'] -= 1
-                last = left['n'] == 0
-            if last and not acc.PROCS.stopping.is_set():
-                sched.submit((i, 0), case.merge)
-        return job
+        return acc.slam_job(case, robot, ARGS.slam, left, lambda: sched.submit((i, 0), case.merge))
 
     def bags():
         try:

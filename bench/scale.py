@@ -6,7 +6,7 @@
                            [--results bench/results]
 
 Each team size runs in a fresh process (``--one``, so that its worker pool, caches and memory
-are its own) that holds one :class:`MapMerger` with the project's defaults (``MergeConfig()``),
+are its own) that holds one :class:`MapMerger` with the project's defaults (``NodeConfig()``),
 its worker pool started before any thread as the node starts it, and no ROS master.
 
 The robots. Robot k's whole map is a random window of 60% of a ground-truth building
@@ -631,12 +631,12 @@ def run_team(robots: int, rounds: int, world_name: str, seed: int, max_s: float,
              rate: float = 0.0) -> dict:
     """One team size's run in this process (module docstring); returns its record. ``rate``:
     estimation cycles per second (Hz; 0: back to back)."""
-    from multi_map_merge.core.config import MergeConfig
     from multi_map_merge.core.mapio import save_map
     from multi_map_merge.core.merger import MapMerger
     from multi_map_merge.core.transforms import pose_distance
     from multi_map_merge.core.workers import start_pool
-    cfg = MergeConfig()
+    from multi_map_merge.node_config import NodeConfig
+    cfg = NodeConfig()
     # the worker pool forked before any thread, as the node does before rospy starts
     start_pool(cfg.workers)
     world = world_map(world_name)

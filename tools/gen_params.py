@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Write config/map_merge.yaml and the README's parameter table (between its markers) from the
-parameter tables, src/multi_map_merge/core/parameters.py (through multi_map_merge.cli.params_doc):
-run after editing them.
+parameter tables, src/multi_map_merge/core/parameters.py and src/multi_map_merge/node_config.py
+(through multi_map_merge.cli.params_doc): run after editing them.
 
     python3 tools/gen_params.py           # write both
     python3 tools/gen_params.py --check   # exit 1 when a committed file differs (as the unit test)

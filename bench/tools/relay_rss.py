@@ -11,9 +11,12 @@ from __future__ import annotations
 
 import argparse
 import os
+import signal
 import subprocess
 import sys
 import time
+
+from multi_map_merge.lab import processes
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 REPO = os.path.dirname(os.path.dirname(HERE))          # (bench/tools/ -> the checkout)
@@ -84,12 +87,7 @@ def main(argv=None) -> int:
             print('%-20s VmRSS %5.1f MB  VmHWM %5.1f MB' % (name, rss, hwm))
     finally:
         for p in reversed(procs):
-            if p.poll() is None:
-                p.terminate()
-                try:
-                    p.wait(10)
-                except subprocess.TimeoutExpired:
-                    p.kill()
+            processes.stop_group(p, 10.0, signal.SIGTERM)   # each a session of its own (start)
     return 0
 
 

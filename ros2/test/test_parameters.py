@@ -9,12 +9,13 @@ pytest.importorskip('rcl_interfaces', reason='no ROS 2 messages: run through `ma
 
 from rcl_interfaces.msg import ParameterType  # noqa: E402
 
+from multi_map_merge import node_config  # noqa: E402
 from multi_map_merge.core import parameters as P  # noqa: E402
 from multi_map_merge_ros2 import parameters as params  # noqa: E402
 
 
 def test_every_row_is_declared_with_its_type_range_and_meaning():
-    for p in P.parameters():
+    for p in node_config.parameters():
         d = params.descriptor(p)
         assert d.description.startswith(p.meaning) and d.additional_constraints.endswith(p.accepts)
         assert d.read_only == (p.name not in params.RUNTIME)
@@ -28,7 +29,7 @@ def test_every_row_is_declared_with_its_type_range_and_meaning():
     assert (unit.floating_point_range[0].from_value, unit.floating_point_range[0].to_value) == (0.0, 1.0)
     count = params.descriptor(P.MERGER['match_candidates'])
     assert count.integer_range[0].from_value == 1
-    assert params.descriptor(P.NODE['tf_rate']).description.endswith('[Hz]')
+    assert params.descriptor(node_config.NODE['tf_rate']).description.endswith('[Hz]')
 
 
 def test_values_given_as_ros2_gives_them_resolve_as_in_ros1():

@@ -37,6 +37,7 @@ checked). Skips, saying so, only when rviz or Xvfb is not installed.
 """
 import os
 import shutil
+import signal
 import struct
 import subprocess
 import sys
@@ -54,6 +55,8 @@ import tf2_ros
 import yaml
 from nav_msgs.msg import OccupancyGrid
 from rostest_helpers import shared_file
+
+from multi_map_merge.lab import processes
 
 PKG = 'multi_map_merge'
 ROBOTS = ['tb3_0', 'tb3_1', 'tb3_2']   # what rviz_screenshot.test publishes; tb3_0 is the reference
@@ -335,13 +338,7 @@ class TestRvizScreenshot(unittest.TestCase):
 
     @staticmethod
     def _stop(p):
-        if p.poll() is None:
-            p.terminate()
-            try:
-                p.wait(10)
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait()
+        processes.stop_group(p, 10.0, signal.SIGTERM)   # its group: a session of its own (_start)
 
     def _check_toolbar(self, path, display):
         """robots_rviz --print-tools on the same config and display: rviz's own toolbar and Tool

@@ -17,8 +17,10 @@ from builtin_interfaces.msg import Time
 from geometry_msgs.msg import PoseWithCovarianceStamped, TransformStamped
 from nav_msgs.msg import MapMetaData, OccupancyGrid
 
-from multi_map_merge.core.grid import Grid, GridError, make_grid
+from multi_map_merge.core import priors
+from multi_map_merge.core.grid import Grid
 from multi_map_merge.core.transforms import xyyaw
+from multi_map_merge.ros.map_input import grid_of
 
 # indices of x, y, yaw in a ROS 6x6 pose covariance, whose order is (x, y, z, roll, pitch, yaw)
 POSE_COV_INDEX = (0, 1, 5)
@@ -28,7 +30,7 @@ UNKNOWN_COVARIANCE = -1.0
 
 def quaternion_yaw(q) -> float:
     """Yaw (radians) of a geometry_msgs/Quaternion (planar part only)."""
-    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+    return priors.quaternion_yaw(q.x, q.y, q.z, q.w)
 
 
 def set_yaw(q, yaw: float) -> None:
@@ -45,18 +47,9 @@ def stamp_seconds(stamp: Time) -> float:
 
 def grid_from_msg(msg: OccupancyGrid, max_cells: int) -> Grid:
     """Validated Grid of an OccupancyGrid (its cells viewed, not copied); raises GridError with
-    the reason (the core's checks: sizes, resolution, origin, cell values)."""
-    info = msg.info
-    o = info.origin
-    q = (o.orientation.x, o.orientation.y, o.orientation.z, o.orientation.w)
-    if not all(math.isfinite(v) for v in q):
-        raise GridError('origin orientation is not finite: %r' % (q,))
-    yaw = quaternion_yaw(o.orientation)
-    data = msg.data
-    cells = np.frombuffer(data, np.int8) if isinstance(data, array.array) else np.asarray(data, np.int8)
-    return make_grid(cells, int(info.width), int(info.height), float(info.resolution),
-                     (float(o.position.x), float(o.position.y), yaw), msg.header.frame_id,
-                     stamp_seconds(msg.header.stamp), max_cells)
+    the reason (the core's checks: sizes, resolution, origin, cell values;
+    :func:`multi_map_merge.ros.map_input.grid_of`, as the ROS 1 node reads its maps)."""
+    return grid_of(msg.info, msg.header.frame_id, stamp_seconds(msg.header.stamp), msg.data, max_cells)
 
 
 def metadata(grid: Grid, stamp: Time) -> MapMetaData:

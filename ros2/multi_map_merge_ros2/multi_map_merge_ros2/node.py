@@ -14,7 +14,6 @@ import threading
 import time
 from typing import Dict, List, Optional
 
-import numpy as np
 import rclpy
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from map_msgs.msg import OccupancyGridUpdate
@@ -26,11 +25,12 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Empty
 from std_srvs.srv import Trigger
 
-from multi_map_merge.core import parameters as P
-from multi_map_merge.core.grid import Grid, GridError, apply_update, same_grid
+from multi_map_merge import node_config
+from multi_map_merge.core.grid import Grid, same_grid
 from multi_map_merge.core.merger import MapMerger
 from multi_map_merge.core.priors import PriorOfReference, pose_of
 from multi_map_merge.core.state import StateFile
+from multi_map_merge.ros.map_input import Log, MapInput
 from multi_map_merge.ros.params import robot_of_map_topic
 
 from . import parameters as params
@@ -73,8 +73,8 @@ class MergeNode(Node):
             log.info(line)
         self.cfg = cfg = res.config
         self._diagnostic_period = float(res.library['diagnostic_period'])
-        values = dict(res.library, **{p.name: getattr(cfg, p.name) for p in P.config_parameters()})
-        for p in P.parameters():
+        values = dict(res.library, **{p.name: getattr(cfg, p.name) for p in node_config.config_parameters()})
+        for p in node_config.parameters():
             # ignore_override: a value given was resolved above (an invalid one logged and its default
             # used); rclpy would raise on it instead
             self.declare_parameter(p.name, params.declared_value(p, values[p.name]), params.descriptor(p),
@@ -91,12 +91,10 @@ class MergeNode(Node):
         self.merger = MapMerger(cfg)
         self._subs: Dict[str, list] = {}
         self._map_topics: Dict[str, str] = {}
-        self._bad: Dict[str, str] = {}
-        self._latest: Dict[str, Grid] = {}
-        self._frame_warned: Dict[str, str] = {}
+        # the robots' maps in, as the ROS 1 node takes them (multi_map_merge.ros.map_input)
+        self._input = MapInput(self.merger, cfg.merged_map_frame, cfg.max_cells,
+                               Log(log.error, log.warning, log.info))
         self._lock = threading.Lock()
-        self._ref_logged = None
-        self._ref_lock = threading.Lock()
         self._map_pub = self.create_publisher(OccupancyGrid, cfg.merged_map_topic, LATCHED)
         self._meta_pub = self.create_publisher(MapMetaData, cfg.merged_map_topic + '_metadata', LATCHED)
         self._placements = PlacementOutputs(self, self.merger, cfg)
@@ -110,7 +108,7 @@ class MergeNode(Node):
                 log.info('%d saved links read from %s; each is verified again before use' % (n, cfg.state_file))
             except ValueError as e:
                 log.error('%s (starting without its saved links)' % e)
-        self._log_reference()
+        self._input.log_reference()
         for r in cfg.robots:
             self._subscribe(r.strip('/'))
         self._ready: Optional[Grid] = None   # the latest merged grid, composited off the publishing path
@@ -170,7 +168,7 @@ class MergeNode(Node):
     def _discover(self) -> None:
         with self._lock:
             topics = dict(self._map_topics)
-        self._health.watch(topics, self._latest)
+        self._health.watch(topics, self._input.latest)
         if self.cfg.robots:
             return
         own = self._map_pub.topic_name
@@ -210,51 +208,11 @@ class MergeNode(Node):
             self._map_topics[robot] = topic
         self.get_logger().info('robot %s found, subscribed to %s' % (robot, topic))
 
-    def _refuse(self, robot: str, reason: str) -> None:
-        if self._bad.get(robot) != reason:   # once per robot and reason, not per message
-            self.get_logger().error('ignoring map of %s: %s' % (robot, reason))
-            self._bad[robot] = reason
-        self.merger.report_error(robot, reason)
-
-    def _accept(self, robot: str, grid: Grid) -> None:
-        frame = grid.frame_id.lstrip('/')
-        if not frame or frame in (self.cfg.merged_map_frame.lstrip('/'), 'map'):
-            # a robot's map frame must be its own ("map" is the merged frame here): its TF child
-            # becomes <robot>/map, as in the ROS 1 node
-            own = '%s/map' % robot
-            if frame and self._frame_warned.get(robot) != frame:
-                self.get_logger().warning('map of %s is in frame "%s", not one of its own: publishing its TF as %s'
-                                          % (robot, grid.frame_id, own))
-                self._frame_warned[robot] = frame
-            grid.frame_id = own
-        if robot in self._bad:
-            self.get_logger().info('map of %s is valid again' % robot)
-            del self._bad[robot]
-        self._latest[robot] = grid
-        event = self.merger.update_map(robot, grid)
-        if event:   # a restart (gmapping's or slam_toolbox's reset): the core forgets its transform
-            self.get_logger().warning(event)
-        self._log_reference()
-
     def _on_map(self, msg: OccupancyGrid, robot: str) -> None:
-        try:
-            grid = grid_from_msg(msg, self.cfg.max_cells)
-        except (GridError, ValueError, TypeError) as e:
-            self._refuse(robot, str(e))
-            return
-        self._accept(robot, grid)
+        self._input.on_map(robot, lambda: grid_from_msg(msg, self.cfg.max_cells))
 
     def _on_update(self, msg: OccupancyGridUpdate, robot: str) -> None:
-        base = self._latest.get(robot)
-        if base is None:
-            return   # an update before any full map has nothing to apply to
-        try:
-            grid = apply_update(base, int(msg.x), int(msg.y), int(msg.width), int(msg.height),
-                                np.asarray(msg.data, np.int8))
-        except (GridError, ValueError, TypeError) as e:
-            self._refuse(robot, 'map_updates: %s' % e)
-            return
-        self._accept(robot, grid)
+        self._input.on_update(robot, msg.x, msg.y, msg.width, msg.height, msg.data)
 
     def _on_prior(self, msg: PoseWithCovarianceStamped, robot: str) -> None:
         """A prior in the merged frame (rviz's 2D Pose Estimate with it as the fixed frame). The
@@ -285,16 +243,6 @@ class MergeNode(Node):
         else:
             self.get_logger().info('/%s/map_merge/clear_prior: %s has no prior' % (robot, robot))
 
-    def _log_reference(self) -> None:
-        choice = self.merger.reference_choice()
-        with self._ref_lock:
-            key = (choice.robot, choice.fixed)
-            if key == self._ref_logged or not choice.robot:
-                return
-            self._ref_logged = key
-        self.get_logger().info(choice.message())
-
-    # -- estimation and compositing, off the executor's thread
     def _estimation_loop(self) -> None:
         log = self.get_logger()
         while self._running and rclpy.ok():
@@ -304,7 +252,7 @@ class MergeNode(Node):
             try:
                 for event in self.merger.estimate():
                     log.info(event)
-                self._log_reference()
+                self._input.log_reference()
             except Exception as e:   # a bad cycle must not end estimation for good
                 log.error('estimation failed: %r' % e)
                 error = e

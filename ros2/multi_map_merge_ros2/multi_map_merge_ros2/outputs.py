@@ -10,16 +10,16 @@ from __future__ import annotations
 import time
 from typing import Callable, Dict, Optional
 
-import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from tf2_msgs.msg import TFMessage
 
-from multi_map_merge.core.config import MergeConfig
 from multi_map_merge.core.merger import MapMerger
+from multi_map_merge.node_config import NodeConfig
 from multi_map_merge.ros.diagnostics import node_diagnostic, robot_diagnostic, stale_maps
+from multi_map_merge.ros.pose_changes import PoseChanges, tf_children
 
 from .convert import pose_with_covariance_msg, transform_msg
 
@@ -30,7 +30,7 @@ LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability
 class PlacementOutputs:
     """TF and ``/<robot>/map_merge/pose`` of ``merger``'s placements, published by ``node``."""
 
-    def __init__(self, node: Node, merger: MapMerger, config: MergeConfig):
+    def __init__(self, node: Node, merger: MapMerger, config: NodeConfig):
         self.node = node
         self.merger = merger
         self.cfg = config
@@ -38,7 +38,7 @@ class PlacementOutputs:
         self._tf_pub = node.create_publisher(TFMessage, '/tf', 100)
         self._last_tf_stamp = None
         self._pose_pubs: Dict[str, object] = {}
-        self._pose_keys: Dict[str, tuple] = {}
+        self._pose_changes = PoseChanges()
 
     def publish_tf(self) -> None:
         frames = self.merger.frames()
@@ -48,33 +48,27 @@ class PlacementOutputs:
             return
         self._last_tf_stamp = now
         stamp = now.to_msg()
-        out = [transform_msg(pl.T, self.cfg.merged_map_frame, frames[robot], stamp)
-               for robot, pl in self.merger.placements().items()
-               if frames.get(robot) and frames[robot] != self.cfg.merged_map_frame]
+        out = [transform_msg(T, self.cfg.merged_map_frame, child, stamp)
+               for T, child in tf_children(self.merger.placements(), frames, self.cfg.merged_map_frame)]
         if out:
             self._tf_pub.publish(TFMessage(transforms=out))
 
     def publish_poses(self) -> None:
         """Per placed robot, its map frame's pose in the merged frame with the placement's
         covariance, sent when either changed."""
-        for robot, pl in self.merger.placements().items():
-            cov = pl.cov   # read once: the estimation thread sets it anew in place
-            key = (pl.T.tobytes(), None if cov is None else np.asarray(cov).tobytes(), pl.via)
-            if self._pose_keys.get(robot) == key:
-                continue
+        for robot, pl, cov in self._pose_changes.due(self.merger.placements()):
             pub = self._pose_pubs.get(robot)
             if pub is None:
                 pub = self._pose_pubs[robot] = self.node.create_publisher(
                     PoseWithCovarianceStamped, '/%s/map_merge/pose' % robot, LATCHED)
             pub.publish(pose_with_covariance_msg(pl.T, cov, self.cfg.merged_map_frame,
                                                  self.node.get_clock().now().to_msg(), exact=not pl.via))
-            self._pose_keys[robot] = key
 
 
 class NodeHealth:
     """Vanished and stale robots in the log, and /diagnostics (see the module docstring)."""
 
-    def __init__(self, node: Node, merger: MapMerger, config: MergeConfig,
+    def __init__(self, node: Node, merger: MapMerger, config: NodeConfig,
                  publishers_of: Callable[[str], int]):
         self.node = node
         self.merger = merger

@@ -1,7 +1,8 @@
 """The node's ROS 2 parameters: every row of the ROS 1 node's tables
-(:mod:`multi_map_merge.core.parameters`), declared with its description, unit and range, checked
-by the same resolver (:func:`multi_map_merge.core.parameters.resolve`: m-explore's names and our
-former ones read as aliases, an invalid value an error line and its default used).
+(:data:`multi_map_merge.node_config.TABLES`: the merger's and the node's), declared with its
+description, unit and range, checked by the same resolver
+(:func:`multi_map_merge.ros.params.resolve_params`: m-explore's names and our former ones read as
+aliases, an invalid value an error line and its default used).
 
 ROS 2's conventions where ROS 1 had none:
 - a parameter read only at start is declared ``read_only``: setting it at run time is refused,
@@ -19,9 +20,9 @@ from typing import Any, Dict, List, Mapping, Optional, Tuple
 import yaml
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
 
+from multi_map_merge import node_config
 from multi_map_merge.core import parameters as P
-from multi_map_merge.core.config import MergeConfig
-from multi_map_merge.ros.params import Resolved
+from multi_map_merge.ros.params import Resolved, resolve_params
 
 #: the parameters a running node takes on when set (``ros2 param set``): the node's timers and
 #: what it reads at every use; every other parameter shapes the merger's state at start
@@ -104,11 +105,7 @@ def resolve_overrides(overrides: Mapping[str, Any]) -> Resolved:
     without ROS 1's ``~``)."""
     given = {n: given_value(n, v) for n, v in overrides.items()}
     given.update(_dotted_mappings(given))
-    res = P.resolve(given, prefix='')
-    config = MergeConfig(**{p.name: res.values[p.name] for p in P.config_parameters()})
-    library = {p.name: res.values[p.name] for p in P.parameters() if p.library}
-    library_given = {n: given[n] for n in library if n in given}
-    return Resolved(config, res.errors, res.warnings, res.notes, library, library_given)
+    return resolve_params(given, prefix='')
 
 
 def _dotted_mappings(given: Dict[str, Any]) -> Dict[str, Any]:
@@ -131,7 +128,7 @@ def _dotted_mappings(given: Dict[str, Any]) -> Dict[str, Any]:
 
 def check_runtime(name: str, value: Any) -> Optional[str]:
     """None when ``value`` may be set for ``name`` at run time; else the reason it is refused."""
-    rows = {p.name: p for p in P.parameters()}
+    rows = declared()
     if name not in rows:
         return 'unknown parameter %s' % name
     if name not in RUNTIME:
@@ -165,4 +162,4 @@ def workers_from_argv(argv: List[str]) -> int:
 
 def declared(rows: Optional[List[P.Parameter]] = None) -> Dict[str, P.Parameter]:
     """Every row the node declares, by name."""
-    return {p.name: p for p in (rows if rows is not None else P.parameters())}
+    return {p.name: p for p in (rows if rows is not None else node_config.parameters())}

@@ -20,10 +20,10 @@ from typing import List, Optional
 
 import yaml
 
-from ..core.config import MergeConfig
 from ..core.mapio import MapFileError, load_map, save_map
 from ..core.merger import MapMerger
 from ..core.report import transforms_report
+from ..node_config import NodeConfig
 from .args import parser
 
 
@@ -65,8 +65,9 @@ def main(argv: Optional[List[str]] = None) -> int:
               file=sys.stderr)
         return 2
     try:   # the reference is a file stem, not a ROS name: set after the parameters are checked
-        config = MergeConfig.from_dict(cfg_dict, warn=lambda w: print('merge_maps: %s: %s' % (a.config, w),
-                                                                       file=sys.stderr))
+        # (the node's YAML is read as it is: its node-only parameters are checked, then unused)
+        config = NodeConfig.from_dict(cfg_dict, warn=lambda w: print('merge_maps: %s: %s' % (a.config, w),
+                                                                     file=sys.stderr))
     except ValueError as e:
         print('merge_maps: %s: %s' % (a.config, str(e).replace('\n', '\n  ')), file=sys.stderr)
         return 2

@@ -1,26 +1,30 @@
-"""One typed configuration for the whole merger and its node: :class:`MergeConfig`, whose fields,
-types and defaults are the parameters of :mod:`.parameters` (their meaning, unit and accepted
-values are declared there; a unit test checks the two agree field by field)."""
+"""The merger's typed configuration: :class:`MergeConfig`, whose fields, types and defaults are
+the parameters of :data:`.parameters.MERGER` (their meaning, unit and accepted values are
+declared there; a unit test checks the two agree field by field). The node's configuration adds
+its own fields to it (:class:`multi_map_merge.node_config.NodeConfig`)."""
 from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
-from typing import Any, Callable, ClassVar, Dict, List, Optional
+from typing import Any, Callable, ClassVar, Dict, List, Optional, Sequence
 
 from . import parameters as _params
 
 
 @dataclass
 class MergeConfig:
-    """The merger's and the node's parameters (:data:`.parameters.MERGER`, :data:`.parameters.NODE`):
-    one field per parameter, in the tables' order, its default the table's. Units are the table's
-    (``python3 -m multi_map_merge.cli.params_doc --markdown`` prints it)."""
+    """The merger's parameters (:data:`.parameters.MERGER`): one field per parameter, in the
+    table's order, its default the table's. Units are the table's (``python3 -m
+    multi_map_merge.cli.params_doc --markdown`` prints it)."""
 
     #: our former names: old name -> name (the old one is still read)
     RENAMED: ClassVar[Dict[str, str]] = _params.renamed()
+    #: the tables its fields come from
+    TABLES: ClassVar[Sequence[_params.Table]] = _params.TABLES
 
-    # -- the merger (parameters.MERGER)
+    robots: List[str] = field(default_factory=list)
     reference_robot: str = ''
+    merged_map_frame: str = 'map'
     free_thresh: float = 19.6   # percent
     occupied_thresh: float = 65.0   # percent
     max_cells: int = 25_000_000   # cells
@@ -53,37 +57,26 @@ class MergeConfig:
     initial_poses: Dict[str, List[float]] = field(default_factory=dict)   # m, m, rad
     initial_pose_tolerance: List[float] = field(default_factory=lambda: [1.0, 0.35])   # m, rad
     trust_initial_poses: bool = False
+    known_init_poses: bool = False
     workers: int = 0   # processes
     estimation_budget: float = 5.0   # s
     refresh_links: bool = True
     dask_scheduler: str = ''
-    # -- the node (parameters.NODE)
-    robot_namespace_pattern: str = 'tb3_*'
-    robots: List[str] = field(default_factory=list)
-    map_topic: str = 'map'
-    map_updates_topic: str = ''
-    merged_map_topic: str = 'map'
-    merged_map_frame: str = 'map'
-    estimation_rate: float = 0.5   # Hz
-    merge_rate: float = 2.0   # Hz
-    discovery_rate: float = 0.5   # Hz
-    tf_rate: float = 20.0   # Hz
-    stale_map_timeout: float = 30.0   # s
-    known_init_poses: bool = False
     state_file: str = ''
 
     @classmethod
     def from_dict(cls, d: Dict[str, Any], warn: Optional[Callable[[str], None]] = None) -> 'MergeConfig':
         """Build from a mapping (name -> value, as config/map_merge.yaml has them) through the one
-        resolver (:func:`.parameters.resolve_strictly`): values converted to each field's type;
-        m-explore's names and former names read as the node reads them. A value out of range, of
-        the wrong type, or a name no parameter has raises :class:`.parameters.ParameterError` (a
-        ValueError) naming each; warnings (an alias overridden, a deprecated name) go to ``warn``."""
-        res = _params.resolve_strictly(d)
+        resolver (:func:`.parameters.resolve_strictly`) over the class's tables: values converted
+        to each field's type; m-explore's names and former names read as the node reads them. A
+        value out of range, of the wrong type, or a name no parameter of those tables has raises
+        :class:`.parameters.ParameterError` (a ValueError) naming each; warnings (an alias
+        overridden, a deprecated name) go to ``warn``."""
+        res = _params.resolve_strictly(d, tables=cls.TABLES)
         if warn is not None:
             for line in res.warnings:
                 warn(line)
-        return cls(**{p.name: res.values[p.name] for p in _params.config_parameters()})
+        return cls(**{p.name: res.values[p.name] for p in _params.config_parameters(cls.TABLES)})
 
     def to_dict(self) -> Dict[str, Any]:
         return dataclasses.asdict(self)

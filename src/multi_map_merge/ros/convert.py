@@ -16,8 +16,10 @@ from map_msgs.msg import OccupancyGridUpdate
 from nav_msgs.msg import MapMetaData, OccupancyGrid
 from rospy.numpy_msg import numpy_msg
 
-from ..core.grid import Grid, GridError, make_grid
+from ..core import priors
+from ..core.grid import Grid
 from ..core.transforms import xyyaw
+from .map_input import grid_of
 
 NumpyGrid = numpy_msg(OccupancyGrid)
 
@@ -31,7 +33,7 @@ NumpyGridUpdate = numpy_msg(OccupancyGridUpdate)
 
 def quaternion_yaw(q) -> float:
     """Yaw (radians) of a geometry_msgs/Quaternion (planar part only)."""
-    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+    return priors.quaternion_yaw(q.x, q.y, q.z, q.w)
 
 
 def set_yaw(q, yaw: float) -> None:
@@ -42,20 +44,8 @@ def set_yaw(q, yaw: float) -> None:
 
 def grid_from_msg(msg, max_cells: int) -> Grid:
     """Validated Grid from an OccupancyGrid (numpy_msg, or plain as rosbag reads it); raises
-    GridError with the reason."""
-    info = msg.info
-    o = info.origin
-    q = (o.orientation.x, o.orientation.y, o.orientation.z, o.orientation.w)
-    # atan2 of infinities is finite, so the quaternion itself must be checked. An all-zero
-    # quaternion is what an unset orientation looks like in ROS: taken as yaw 0.
-    if not all(math.isfinite(v) for v in q):
-        raise GridError('origin orientation is not finite: %r' % (q,))
-    yaw = quaternion_yaw(o.orientation)
-    # plain messages from a bag carry int8[] as bytes or a tuple: bytes are viewed, not copied
-    data = np.frombuffer(msg.data, np.int8) if isinstance(msg.data, (bytes, bytearray)) else np.asarray(msg.data)
-    return make_grid(data, int(info.width), int(info.height), float(info.resolution),
-                     (float(o.position.x), float(o.position.y), yaw), msg.header.frame_id,
-                     msg.header.stamp.to_sec(), max_cells)
+    GridError with the reason (:func:`.map_input.grid_of`)."""
+    return grid_of(msg.info, msg.header.frame_id, msg.header.stamp.to_sec(), msg.data, max_cells)
 
 
 def grid_to_msg(grid: Grid, stamp: rospy.Time, frame_id: Optional[str] = None):

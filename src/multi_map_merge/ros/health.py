@@ -10,8 +10,8 @@ from typing import Container, Dict, Optional
 
 import rospy
 
-from ..core.config import MergeConfig
 from ..core.merger import MapMerger
+from ..node_config import NodeConfig
 from .diagnostics import node_diagnostic, robot_diagnostic, stale_maps
 from .updater import Updater
 
@@ -20,7 +20,7 @@ class NodeHealth:
     """The robots' and the node's status for ``merger``; ``diagnostic_period`` and
     ``given_period``: :class:`updater.Updater`'s."""
 
-    def __init__(self, merger: MapMerger, config: MergeConfig, diagnostic_period: float = 1.0,
+    def __init__(self, merger: MapMerger, config: NodeConfig, diagnostic_period: float = 1.0,
                  given_period=1.0):
         self.merger = merger
         self.cfg = config

@@ -15,20 +15,20 @@ import threading
 import time
 from typing import Dict, List, Optional
 
-import numpy as np
 import rospy
 from nav_msgs.msg import MapMetaData
 from nav_msgs.srv import GetMap, GetMapResponse
 from std_srvs.srv import Trigger, TriggerResponse
 
-from ..core.config import MergeConfig
-from ..core.grid import Grid, GridError, apply_update, same_grid
+from ..core.grid import same_grid
 from ..core.merger import MapMerger
 from ..core.state import StateFile
 from ..core.workers import start_pool
+from ..node_config import NodeConfig
 from .before_init import NODE_NAME, workers_before_init
 from .convert import NumpyGrid, NumpyGridUpdate, grid_from_msg, grid_to_msg, metadata
 from .health import NodeHealth
+from .map_input import Log, MapInput
 from .params import resolve_params, robot_of_map_topic
 from .placement_outputs import PlacementOutputs
 from .prior_inputs import PriorInputs
@@ -60,7 +60,7 @@ def log_to_rosout() -> None:
         logger.propagate = False    # (rospy's own lines reach the log file through rosout)
 
 
-def load_config() -> MergeConfig:
+def load_config() -> NodeConfig:
     return load_params().config
 
 
@@ -69,9 +69,9 @@ def load_params():
     (:func:`resolve_params`): an invalid value is logged as an error naming the parameter and
     what it accepts, and its default is used; an unknown name gets a warning naming the closest
     known one; m-explore's names are read as aliases. Every parameter, its default and what it
-    accepts are declared in the tables of :mod:`multi_map_merge.core.parameters` (MergeConfig
-    and config/map_merge.yaml are made from them). Returns the :class:`Resolved` (its
-    ``config`` is the node's)."""
+    accepts are declared in the tables of :mod:`multi_map_merge.core.parameters` and
+    :mod:`multi_map_merge.node_config` (NodeConfig and config/map_merge.yaml are made from
+    them). Returns the :class:`Resolved` (its ``config`` is the node's)."""
     try:
         given = rospy.get_param('~', {})
     except KeyError:
@@ -97,14 +97,17 @@ class MergeNode:
     state on ``/diagnostics`` (``diagnostic_updater``).
     """
 
-    def __init__(self, config: MergeConfig, diagnostic_period: float = 1.0, given_period=1.0):
+    def __init__(self, config: NodeConfig, diagnostic_period: float = 1.0, given_period=1.0):
         self.cfg = config
         # the reference robot: ~reference_robot, else the first of ~robots by name, else the first
         # by name among the robots with a map until another is merged with it (the merger's rule)
         self.merger = MapMerger(config)
         self._subs: Dict[str, list] = {}
-        self._bad: Dict[str, str] = {}
-        self._latest: Dict[str, Grid] = {}   # last accepted raw grid per robot (for map_updates)
+        # the robots' maps in: refused ones logged once per reason, each in a frame of its own
+        self._input = MapInput(self.merger, config.merged_map_frame, config.max_cells,
+                               Log(lambda line: rospy.logerr('multi_map_merge: %s', line),
+                                   lambda line: rospy.logwarn('multi_map_merge: %s', line),
+                                   lambda line: rospy.loginfo('multi_map_merge: %s', line)))
         self._lock = threading.Lock()
         self._map_pub = rospy.Publisher(config.merged_map_topic, NumpyGrid, queue_size=1, latch=True)
         self._meta_pub = rospy.Publisher(config.merged_map_topic + '_metadata', MapMetaData,
@@ -124,11 +127,8 @@ class MergeNode:
                               'before use', n, config.state_file)
             except ValueError as e:
                 rospy.logerr('multi_map_merge: %s (starting without its saved links)', e)
-        self._frame_warned: Dict[str, str] = {}
         self._priors = PriorInputs(self.merger, config)
-        self._ref_logged = None
-        self._ref_lock = threading.Lock()
-        self._log_reference()
+        self._input.log_reference()
         for r in config.robots:
             self._subscribe(r.strip('/'))
         self._ready = None   # the latest merged grid, composited off the publishing path
@@ -153,7 +153,7 @@ class MergeNode:
     def _discover(self, _event) -> None:
         with self._lock:
             map_subs = {robot: subs[0] for robot, subs in self._subs.items()}
-        self._health.watch(map_subs, self._latest)
+        self._health.watch(map_subs, self._input.latest)
         if self.cfg.robots:
             return
         try:
@@ -171,16 +171,6 @@ class MergeNode:
         for robot in found:
             self._subscribe(robot)
 
-    def _log_reference(self) -> None:
-        """One info line when the reference robot is chosen, changes, or is fixed."""
-        choice = self.merger.reference_choice()
-        with self._ref_lock:
-            key = (choice.robot, choice.fixed)
-            if key == self._ref_logged or not choice.robot:
-                return
-            self._ref_logged = key
-        rospy.loginfo('multi_map_merge: %s', choice.message())
-
     def _subscribe(self, robot: str) -> None:
         with self._lock:
             if robot in self._subs:
@@ -195,51 +185,11 @@ class MergeNode:
         rospy.loginfo('multi_map_merge: robot %s found, subscribed to %s', robot, topic)
         self._priors.add_robot(robot)
 
-    def _refuse(self, robot: str, reason: str) -> None:
-        if self._bad.get(robot) != reason:  # once per robot and reason, not per message
-            rospy.logerr('multi_map_merge: ignoring map of %s: %s', robot, reason)
-            self._bad[robot] = reason
-        self.merger.report_error(robot, reason)
-
-    def _accept(self, robot: str, grid: Grid) -> None:
-        frame = grid.frame_id.lstrip('/')
-        if not frame or frame in (self.cfg.merged_map_frame.lstrip('/'), 'map'):
-            # A robot's map frame must be its own: a bag recorded by a lone robot says "map",
-            # which is the merged frame here. Its TF child becomes <robot>/map.
-            own = '%s/map' % robot
-            if frame and self._frame_warned.get(robot) != frame:
-                rospy.logwarn('multi_map_merge: map of %s is in frame "%s", not one of its own: '
-                              'publishing its TF as %s', robot, grid.frame_id, own)
-                self._frame_warned[robot] = frame
-            grid.frame_id = own
-        if robot in self._bad:
-            rospy.loginfo('multi_map_merge: map of %s is valid again', robot)
-            del self._bad[robot]
-        self._latest[robot] = grid
-        event = self.merger.update_map(robot, grid)
-        if event:
-            rospy.logwarn('multi_map_merge: %s', event)
-        self._log_reference()
-
     def _on_map(self, msg, robot: str) -> None:
-        try:
-            grid = grid_from_msg(msg, self.cfg.max_cells)
-        except (GridError, ValueError, TypeError) as e:
-            self._refuse(robot, str(e))
-            return
-        self._accept(robot, grid)
+        self._input.on_map(robot, lambda: grid_from_msg(msg, self.cfg.max_cells))
 
     def _on_update(self, msg, robot: str) -> None:
-        base = self._latest.get(robot)
-        if base is None:
-            return  # an update before any full map has nothing to apply to
-        try:
-            grid = apply_update(base, int(msg.x), int(msg.y), int(msg.width), int(msg.height),
-                                np.asarray(msg.data))
-        except (GridError, ValueError, TypeError) as e:
-            self._refuse(robot, 'map_updates: %s' % e)
-            return
-        self._accept(robot, grid)
+        self._input.on_update(robot, msg.x, msg.y, msg.width, msg.height, msg.data)
 
     # -- estimation, off the publishing path
     def _estimation_loop(self) -> None:
@@ -251,7 +201,7 @@ class MergeNode:
                 self._priors.check_spawn_poses()
                 for event in self.merger.estimate():
                     rospy.loginfo('multi_map_merge: %s', event)
-                self._log_reference()
+                self._input.log_reference()
             except Exception as e:  # a bad cycle must not end estimation for good
                 rospy.logerr('multi_map_merge: estimation failed: %r', e)
                 error = e

@@ -1,9 +1,10 @@
 """The node's private parameters, resolved and validated as a pure function (no master, no
 rospy): :func:`resolve_params` takes what ``rospy.get_param('~')`` returns and gives the
-:class:`MergeConfig` to run with, plus the errors and warnings to log.
+:class:`~multi_map_merge.node_config.NodeConfig` to run with, plus the errors and warnings to log.
 
-Every parameter is declared once, in :mod:`multi_map_merge.core.parameters` (the merger's table
-and the node's); this module is the node's use of its resolver. A value of the wrong type or out
+Every parameter is declared once, in :mod:`multi_map_merge.core.parameters` (the merger's table)
+or :mod:`multi_map_merge.node_config` (the node's); this module is the node's use of their
+resolver. A value of the wrong type or out
 of range is an error naming the parameter and what it accepts; the node then runs with that
 parameter's default (a merger that refuses to start takes a robot team's map away over one typo;
 the error line says what was used instead). A private parameter the node does not know is a
@@ -17,11 +18,12 @@ import fnmatch
 from dataclasses import dataclass, field
 from typing import Any, Dict, List, Mapping, Optional, Tuple
 
+from .. import node_config
 from ..core import parameters as P
-from ..core.config import MergeConfig
+from ..node_config import NodeConfig
 
-#: private parameters read by the libraries the node uses (not MergeConfig's), by name
-_LIBRARY: Dict[str, P.Parameter] = {p.name: p for p in P.parameters() if p.library}
+#: private parameters read by the libraries the node uses (not NodeConfig's), by name
+_LIBRARY: Dict[str, P.Parameter] = {p.name: p for p in node_config.parameters() if p.library}
 
 
 def check_library_param(name: str, value: Any) -> Tuple[Any, Optional[str]]:
@@ -50,7 +52,7 @@ def robot_of_map_topic(topic: str, ttype: str, map_topic: str, pattern: str) -> 
 
 @dataclass
 class Resolved:
-    config: MergeConfig
+    config: NodeConfig
     errors: List[str] = field(default_factory=list)
     warnings: List[str] = field(default_factory=list)
     notes: List[str] = field(default_factory=list)   # aliases read: worth an info line
@@ -58,10 +60,11 @@ class Resolved:
     library_given: Dict[str, Any] = field(default_factory=dict)   # ... and as given (when given)
 
 
-def resolve_params(given: Mapping[str, Any]) -> Resolved:
-    """``given``: the node's private namespace as a mapping (name -> value)."""
-    res = P.resolve(given)
-    config = MergeConfig(**{p.name: res.values[p.name] for p in P.config_parameters()})
+def resolve_params(given: Mapping[str, Any], prefix: str = '~') -> Resolved:
+    """``given``: the node's private namespace as a mapping (name -> value); names are shown
+    after ``prefix`` (ROS 2's node: none)."""
+    res = P.resolve(given, node_config.TABLES, prefix=prefix)
+    config = NodeConfig(**{p.name: res.values[p.name] for p in node_config.config_parameters()})
     library = {name: res.values[name] for name in _LIBRARY}
     library_given = {name: given[name] for name in _LIBRARY if name in given}
     return Resolved(config, res.errors, res.warnings, res.notes, library, library_given)

@@ -6,22 +6,22 @@ from __future__ import annotations
 
 from typing import Dict
 
-import numpy as np
 import rospy
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import MarkerArray
 
-from ..core.config import MergeConfig
 from ..core.merger import MapMerger
+from ..node_config import NodeConfig
 from .convert import pose_with_covariance_msg, transform_msg
 from .markers import markers_key, markers_msg
+from .pose_changes import PoseChanges, tf_children
 
 
 class PlacementOutputs:
     """The publishers of the placements of ``merger`` (see the module docstring)."""
 
-    def __init__(self, merger: MapMerger, config: MergeConfig):
+    def __init__(self, merger: MapMerger, config: NodeConfig):
         self.merger = merger
         self.cfg = config
         # /tf as tf2_ros's TransformBroadcaster sends it (it is this publisher), without importing
@@ -33,7 +33,7 @@ class PlacementOutputs:
         self._markers_key = None
         # /<robot>/map_merge/pose (latched, made as robots are placed) and what each last sent
         self._pose_pubs: Dict[str, rospy.Publisher] = {}
-        self._pose_keys: Dict[str, tuple] = {}
+        self._pose_changes = PoseChanges()
 
     def start(self) -> None:
         """Publish from now on, each at its rate."""
@@ -58,18 +58,13 @@ class PlacementOutputs:
         covariance on ``/<robot>/map_merge/pose`` (latched), sent when the placement or its
         covariance changed. A robot no longer placed gets nothing new (its TF stops; /diagnostics
         says it is not merged)."""
-        for robot, pl in self.merger.placements().items():
-            cov = pl.cov   # read once: the estimation thread sets it anew in place
-            key = (pl.T.tobytes(), None if cov is None else np.asarray(cov).tobytes(), pl.via)
-            if self._pose_keys.get(robot) == key:
-                continue
+        for robot, pl, cov in self._pose_changes.due(self.merger.placements()):
             pub = self._pose_pubs.get(robot)
             if pub is None:
                 pub = self._pose_pubs[robot] = rospy.Publisher(
                     '/%s/map_merge/pose' % robot, PoseWithCovarianceStamped, queue_size=1, latch=True)
             pub.publish(pose_with_covariance_msg(pl.T, cov, self.cfg.merged_map_frame, rospy.Time.now(),
                                                  exact=not pl.via))
-            self._pose_keys[robot] = key
 
     def _publish_tf(self, _event) -> None:
         frames = self.merger.frames()
@@ -78,10 +73,7 @@ class PlacementOutputs:
         if now == self._last_tf_stamp:
             return
         self._last_tf_stamp = now
-        out = []
-        for robot, pl in self.merger.placements().items():
-            child = frames.get(robot)
-            if child and child != self.cfg.merged_map_frame:
-                out.append(transform_msg(pl.T, self.cfg.merged_map_frame, child, now))
+        out = [transform_msg(T, self.cfg.merged_map_frame, child, now)
+               for T, child in tf_children(self.merger.placements(), frames, self.cfg.merged_map_frame)]
         if out:
             self._tf_pub.publish(TFMessage(out))

@@ -22,17 +22,17 @@ import rospy
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from std_msgs.msg import Empty
 
-from ..core.config import MergeConfig
 from ..core.merger import MapMerger
 from ..core.priors import PriorOfReference, PriorRefused, pose_of
 from ..core.transforms import se2, xyyaw
+from ..node_config import NodeConfig
 from .convert import quaternion_yaw
 
 
 class PriorInputs:
     """Every robot's prior topics and parameters (see the module docstring), for ``merger``."""
 
-    def __init__(self, merger: MapMerger, config: MergeConfig):
+    def __init__(self, merger: MapMerger, config: NodeConfig):
         self.merger = merger
         self.cfg = config
         self._subs: Dict[str, list] = {}

@@ -9,8 +9,8 @@ import fnmatch
 import rospy
 from tf2_msgs.msg import TFMessage
 
-from ..core.config import MergeConfig
 from ..core.merger import MapMerger
+from ..node_config import NodeConfig
 from .setup_check import foreign_robot_map_tf, foreign_tf_warning, rsp_version_warning
 
 #: seconds after start during which /tf is read for other senders of the node's transforms
@@ -22,7 +22,7 @@ class SetupWatch:
     TF_CHECK_SECONDS after start only, as every robot's TF at 50 Hz would cost this Python node
     a core."""
 
-    def __init__(self, merger: MapMerger, config: MergeConfig):
+    def __init__(self, merger: MapMerger, config: NodeConfig):
         self.merger = merger
         self.cfg = config
         try:

@@ -1,6 +1,7 @@
-"""Every parameter is declared once, in core/parameters.py (the merger's table and the node's):
-MergeConfig's fields, config/map_merge.yaml, the README's parameter table and the names the node
-reads are derived from it or checked against it here. A parameter declared anywhere else fails."""
+"""Every parameter is declared once, in core/parameters.py (the merger's table) or node_config.py
+(the node's): MergeConfig's and NodeConfig's fields, config/map_merge.yaml, the README's parameter
+table and the names the node reads are derived from them or checked against them here. A
+parameter declared anywhere else fails."""
 import ast
 import os
 import pickle
@@ -11,11 +12,13 @@ import pytest
 import yaml
 from conftest import REPO
 
+from multi_map_merge import node_config
 from multi_map_merge.cli import params_doc
 from multi_map_merge.core import parameters as P
 from multi_map_merge.core.config import MergeConfig
+from multi_map_merge.node_config import NodeConfig
 
-ALL = {p.name: p for p in P.parameters()}
+ALL = {p.name: p for p in node_config.parameters()}
 
 
 def read(*path):
@@ -24,54 +27,62 @@ def read(*path):
 
 
 def test_each_parameter_is_in_one_table_once():
-    names = [p.name for p in P.parameters()]
+    names = [p.name for p in node_config.parameters()]
     assert len(names) == len(set(names))
-    aliases = [a for p in P.parameters() for a in list(p.former) + [o for o, _ in p.mexplore + p.deprecated]]
+    aliases = [a for p in node_config.parameters() for a in list(p.former) + [o for o, _ in p.mexplore + p.deprecated]]
     assert len(aliases) == len(set(aliases)) and not set(aliases) & set(names)
-    assert set(P.MERGER.names()).isdisjoint(P.NODE.names())
+    assert set(P.MERGER.names()).isdisjoint(node_config.NODE.names())
     assert not any(p.library for p in P.MERGER.rows)   # library parameters are the node's
+    assert node_config.TABLES == (P.MERGER, node_config.NODE) and P.TABLES == (P.MERGER,)
 
 
-def test_mergeconfig_fields_are_the_tables_parameters_with_their_defaults():
-    d = MergeConfig()
-    assert [f.name for f in fields(MergeConfig)] == [p.name for p in P.config_parameters()]
-    for p in P.config_parameters():
+@pytest.mark.parametrize('config,rows', [(MergeConfig, P.config_parameters),
+                                         (NodeConfig, node_config.config_parameters)])
+def test_configs_fields_are_the_tables_parameters_with_their_defaults(config, rows):
+    d = config()
+    assert [f.name for f in fields(config)] == [p.name for p in rows()]
+    for p in rows():
         assert getattr(d, p.name) == p.default, p.name
         assert p.convert(p.default) == p.default, p.name   # each default passes its own rule
+    assert issubclass(NodeConfig, MergeConfig)   # the merger takes the node's configuration as it is
+    assert not set(node_config.NODE.names()) & {f.name for f in fields(MergeConfig)}
     assert MergeConfig.RENAMED == {'min_reliability': 'min_inlier_ratio', 'transforms_file': 'state_file'}
     assert MergeConfig().initial_poses is not MergeConfig().initial_poses   # mutable defaults not shared
 
 
-def test_mergeconfig_is_written_out_field_by_field_with_each_parameters_type():
-    """MergeConfig is a plain dataclass (its fields readable in config.py); each field's declared
-    type is its parameter's kind, and it pickles by its own name (the worker processes)."""
+@pytest.mark.parametrize('config,module', [(MergeConfig, 'multi_map_merge.core.config'),
+                                           (NodeConfig, 'multi_map_merge.node_config')])
+def test_configs_are_written_out_field_by_field_with_each_parameters_type(config, module):
+    """Each is a plain dataclass (its fields readable in its module); each field's declared type
+    is its parameter's kind, and it pickles by its own name (the worker processes)."""
     kinds = {'bool': 'bool', 'int': 'int', 'double': 'float', 'string': 'str', 'string list': 'List[str]',
              'double list': 'List[float]', 'dict': 'Dict[str, List[float]]'}
-    declared = {f.name: f.type for f in fields(MergeConfig)}
-    for p in P.config_parameters():
-        assert declared[p.name] == kinds[p.kind], p.name
-    assert MergeConfig.__module__ == 'multi_map_merge.core.config'
-    c = MergeConfig(workers=3, initial_poses={'a': [1.0, 2.0, 0.5]})
+    declared = {f.name: f.type for f in fields(config)}
+    for p in node_config.config_parameters():
+        if p.name in declared:
+            assert declared[p.name] == kinds[p.kind], p.name
+    assert config.__module__ == module
+    c = config(workers=3, initial_poses={'a': [1.0, 2.0, 0.5]})
     assert pickle.loads(pickle.dumps(c)) == c
 
 
 def test_every_parameter_has_a_unit_or_none_a_meaning_and_a_type():
-    for p in P.parameters():
+    for p in node_config.parameters():
         assert p.meaning and '\n' not in p.meaning and '|' not in p.doc, p.name
         assert p.kind in ('bool', 'int', 'double', 'string', 'string list', 'double list', 'dict'), p.name
         assert p.section, p.name
-    units = {p.name: p.unit for p in P.parameters()}
+    units = {p.name: p.unit for p in node_config.parameters()}
     assert units['merge_rate'] == 'Hz' and units['stale_map_timeout'] == 's' and units['map_drift'] == 'm/m'
 
 
 def test_committed_yaml_is_generated_from_the_tables():
-    """tools/gen_params.py writes it: run it after editing core/parameters.py."""
+    """tools/gen_params.py writes it: run it after editing core/parameters.py or node_config.py."""
     assert read('config', 'map_merge.yaml') == params_doc.yaml_text()
 
 
 def test_yaml_names_and_defaults_are_the_tables():
     y = yaml.safe_load(read('config', 'map_merge.yaml'))
-    assert set(y) == {p.name for p in P.config_parameters()}
+    assert set(y) == {p.name for p in node_config.config_parameters()}
     for name, value in y.items():
         assert value == ALL[name].default, name
 
@@ -144,11 +155,25 @@ def test_the_node_reads_no_private_parameter_outside_the_tables():
     assert seen >= 1   # ~diagnostic_period, read again while running
 
 
-def test_the_tables_module_is_ros_free():
-    tree = ast.parse(read('src', 'multi_map_merge', 'core', 'parameters.py'))
+@pytest.mark.parametrize('path', [('core', 'parameters.py'), ('node_config.py',)])
+def test_the_tables_modules_are_ros_free(path):
+    tree = ast.parse(read('src', 'multi_map_merge', *path))
     imported = {a.name.split('.')[0] for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
     imported |= {n.module.split('.')[0] for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and n.module}
     assert not imported & {'rospy', 'rosgraph', 'roslib', 'yaml', 'numpy'}
+
+
+def test_the_core_knows_nothing_of_the_node():
+    """The node's table is out of core/: no module of core/ imports it, and the core's config and
+    resolver do not know the node's parameters."""
+    core = os.path.join(REPO, 'src', 'multi_map_merge', 'core')
+    for name in sorted(os.listdir(core)):
+        if name.endswith('.py'):
+            text = read('src', 'multi_map_merge', 'core', name)
+            assert 'node_config' not in re.sub(r'""".*?"""|#.*', '', text, flags=re.S), name
+    with pytest.raises(P.ParameterError) as e:
+        MergeConfig.from_dict({'merge_rate': 2.0})
+    assert 'unknown parameter merge_rate' in str(e.value)
 
 
 # -- MergeConfig.from_dict: the front ends' (merge_maps --config, evaluate_map) use of the resolver
@@ -159,7 +184,7 @@ def test_from_dict_converts_types():
 
 
 def test_from_dict_of_the_shipped_yaml_is_the_defaults():
-    assert MergeConfig.from_dict(yaml.safe_load(read('config', 'map_merge.yaml'))) == MergeConfig()
+    assert NodeConfig.from_dict(yaml.safe_load(read('config', 'map_merge.yaml'))) == NodeConfig()
 
 
 def test_a_renamed_parameter_is_still_read_by_its_old_name():
@@ -172,8 +197,8 @@ def test_a_renamed_parameter_is_still_read_by_its_old_name():
 
 def test_from_dict_reads_mexplore_names_and_warns_as_the_node_does():
     warned = []
-    c = MergeConfig.from_dict({'merging_rate': 4.0, 'init_pose_params': True, 'merge_rate': 3.0},
-                              warn=warned.append)
+    c = NodeConfig.from_dict({'merging_rate': 4.0, 'init_pose_params': True, 'merge_rate': 3.0},
+                             warn=warned.append)
     assert c.merge_rate == 3.0 and c.known_init_poses is True
     assert len(warned) == 2 and any('deprecated' in w for w in warned) and any('wins' in w for w in warned)
 
@@ -190,7 +215,7 @@ def test_from_dict_reads_mexplore_names_and_warns_as_the_node_does():
 ])
 def test_from_dict_refuses_bad_values_and_unknown_names(given, words):
     with pytest.raises(P.ParameterError) as e:
-        MergeConfig.from_dict(given)
+        NodeConfig.from_dict(given)
     for w in words:
         assert w in str(e.value), str(e.value)
     assert 'using the default' not in str(e.value)
@@ -204,9 +229,9 @@ def test_from_dict_names_every_error_at_once():
 
 def test_from_dict_needs_a_mapping_of_names():
     with pytest.raises(P.ParameterError):
-        MergeConfig.from_dict(['merge_rate', 2])
+        NodeConfig.from_dict(['merge_rate', 2])
     with pytest.raises(P.ParameterError) as e:
-        MergeConfig.from_dict({1: 2, 'merge_rate': 2})   # (YAML reads `1: 2` so)
+        NodeConfig.from_dict({1: 2, 'merge_rate': 2})   # (YAML reads `1: 2` so)
     assert 'names must be strings' in str(e.value)
 
 

@@ -1,5 +1,5 @@
 """The node's parameter resolution (ros/params.py) as a pure function: no master, no rospy.
-What a user's YAML or launch file gives -> the MergeConfig the node runs with, and the errors
+What a user's YAML or launch file gives -> the NodeConfig the node runs with, and the errors
 and warnings it logs."""
 import glob
 import os
@@ -9,14 +9,15 @@ import pytest
 import yaml
 from conftest import BURGER_XACRO, REPO, shared_file
 
+from multi_map_merge import node_config
 from multi_map_merge.core import parameters as P
-from multi_map_merge.core.config import MergeConfig
+from multi_map_merge.node_config import NodeConfig
 from multi_map_merge.ros.params import check_library_param, resolve_params, robot_of_map_topic
 
-# the tables (core/parameters.py), by name
-RULES = {p.name: p.rule for p in P.config_parameters()}                      # MergeConfig's
-LIBRARY_RULES = {p.name: (p.rule, p.default) for p in P.parameters() if p.library}
-MEXPLORE_ALIASES = {old: p.name for p in P.parameters() for old, _ in p.mexplore}
+# the tables (core/parameters.py, node_config.py), by name
+RULES = {p.name: p.rule for p in node_config.config_parameters()}                      # NodeConfig's
+LIBRARY_RULES = {p.name: (p.rule, p.default) for p in node_config.parameters() if p.library}
+MEXPLORE_ALIASES = {old: p.name for p in node_config.parameters() for old, _ in p.mexplore}
 
 
 def shipped_yaml():
@@ -25,28 +26,28 @@ def shipped_yaml():
 
 
 def test_every_parameter_has_a_rule():
-    assert set(RULES) == {f.name for f in fields(MergeConfig)}
+    assert set(RULES) == {f.name for f in fields(NodeConfig)}
 
 
 def test_shipped_yaml_resolves_clean_to_the_defaults():
     res = resolve_params(shipped_yaml())
     assert (res.errors, res.warnings, res.notes) == ([], [], [])
-    assert res.config == MergeConfig()
+    assert res.config == NodeConfig()
 
 
 def test_nothing_given_is_the_defaults():
     res = resolve_params({})
-    assert res.config == MergeConfig() and not res.errors and not res.warnings
+    assert res.config == NodeConfig() and not res.errors and not res.warnings
 
 
 @pytest.mark.parametrize('name', ['estimation_rate', 'merge_rate', 'discovery_rate', 'tf_rate'])
 @pytest.mark.parametrize('value', [0, 0.0, -1.0, float('nan'), float('inf'), 'fast', True, [2.0]])
 def test_a_bad_rate_is_an_error_naming_it_and_its_range_and_the_default_is_used(name, value):
     res = resolve_params({name: value})
-    assert getattr(res.config, name) == getattr(MergeConfig(), name)
+    assert getattr(res.config, name) == getattr(NodeConfig(), name)
     assert len(res.errors) == 1, res.errors
     assert '~%s' % name in res.errors[0] and '> 0' in res.errors[0], res.errors[0]
-    assert 'using the default %r' % getattr(MergeConfig(), name) in res.errors[0]
+    assert 'using the default %r' % getattr(NodeConfig(), name) in res.errors[0]
 
 
 def test_good_values_of_every_kind_are_taken_and_converted():
@@ -87,7 +88,7 @@ def test_good_values_of_every_kind_are_taken_and_converted():
 def test_invalid_values_are_errors_and_defaults_are_used(name, value, accepts):
     res = resolve_params({name: value, 'merge_rate': 3.0})
     assert len(res.errors) == 1 and '~%s' % name in res.errors[0] and accepts in res.errors[0], res.errors
-    assert getattr(res.config, name) == getattr(MergeConfig(), name)
+    assert getattr(res.config, name) == getattr(NodeConfig(), name)
     assert res.config.merge_rate == 3.0   # the others are still taken
 
 
@@ -103,14 +104,14 @@ def test_free_thresh_must_be_below_occupied_thresh():
 def test_an_unknown_parameter_is_one_warning_naming_the_closest_known(typo, closest):
     res = resolve_params({typo: 1.0})
     assert res.warnings == ['unknown parameter ~%s ignored: did you mean ~%s?' % (typo, closest)]
-    assert res.config == MergeConfig() and not res.errors
+    assert res.config == NodeConfig() and not res.errors
 
 
 def test_diagnostic_updaters_period_is_known_and_documented():
     """~diagnostic_period is read by diagnostic_updater, not by us: no unknown-parameter warning,
     and a row in the README's Parameters table."""
     res = resolve_params({'diagnostic_period': 2.0})
-    assert not res.warnings and not res.errors and res.config == MergeConfig()
+    assert not res.warnings and not res.errors and res.config == NodeConfig()
     with open(os.path.join(REPO, 'README.md')) as f:
         text = f.read()
     for name in LIBRARY_RULES:
@@ -152,13 +153,13 @@ def test_ours_wins_over_an_alias_with_a_warning():
 
 def test_an_invalid_alias_value_is_an_error_naming_the_alias():
     res = resolve_params({'merging_rate': 0})
-    assert res.config.merge_rate == MergeConfig().merge_rate
+    assert res.config.merge_rate == NodeConfig().merge_rate
     assert len(res.errors) == 1 and '~merging_rate' in res.errors[0] and '> 0' in res.errors[0]
 
 
 def test_estimation_confidence_is_accepted_but_said_to_have_no_equivalent():
     res = resolve_params({'estimation_confidence': 1.0})
-    assert res.config == MergeConfig() and not res.errors
+    assert res.config == NodeConfig() and not res.errors
     assert len(res.warnings) == 1 and 'no equivalent' in res.warnings[0]
 
 
@@ -208,7 +209,7 @@ def test_no_launch_file_sets_a_parameter_the_merger_warns_about():
 
 
 def test_known_init_poses_is_off_by_default_as_in_mexplore():
-    assert MergeConfig().known_init_poses is False
+    assert NodeConfig().known_init_poses is False
     assert resolve_params(shipped_yaml()).config.known_init_poses is False
 
 
@@ -244,7 +245,7 @@ def test_robotis_mexplore_block_resolves_with_only_the_confidence_warning():
     assert (c.map_topic, c.robot_namespace_pattern) == ('map', 'tb3*')
     assert (c.merged_map_topic, c.merged_map_frame) == ('map', 'map')
     assert (c.merge_rate, c.discovery_rate, c.estimation_rate, c.known_init_poses) == (0.5, 0.05, 0.1, True)
-    assert c.min_inlier_ratio == MergeConfig().min_inlier_ratio   # estimation_confidence maps to nothing
+    assert c.min_inlier_ratio == NodeConfig().min_inlier_ratio   # estimation_confidence maps to nothing
 
 
 def test_the_former_name_of_state_file_is_still_read():
@@ -285,7 +286,7 @@ def test_every_parameter_refuses_values_of_no_use_with_one_error_naming_it(name,
     if name in LIBRARY_RULES:
         assert res.library[name] == LIBRARY_RULES[name][1]
     else:
-        assert getattr(res.config, name) == getattr(MergeConfig(), name)
+        assert getattr(res.config, name) == getattr(NodeConfig(), name)
 
 
 @pytest.mark.parametrize('value', ['abc', 0, -1.0, float('nan'), [1.0], True])
@@ -320,7 +321,7 @@ def test_names_the_node_cannot_use_are_errors(name, value):
     was ever found. Each name is checked for what the node does with it."""
     res = resolve_params({name: value})
     assert len(res.errors) == 1 and '~%s ' % name in res.errors[0], res.errors
-    assert getattr(res.config, name) == getattr(MergeConfig(), name)
+    assert getattr(res.config, name) == getattr(NodeConfig(), name)
 
 
 def test_names_the_node_can_use_are_taken():
