@@ -18,7 +18,7 @@ from __future__ import annotations
 import dataclasses
 import threading
 import time
-from typing import Dict, List, Optional, Tuple
+from typing import Dict, FrozenSet, List, Optional, Tuple
 
 import numpy as np
 
@@ -84,15 +84,18 @@ class Linker:
             via = {n: p.via for n, p in placements.items()}
             return self.ledger.plan(facts, cycle.ref, _versions(maps), placed, via, maps[cycle.ref].grid.resolution)
 
-    def align(self, cycle: Cycle, plan: schedule.Plan, defer_pins: bool = False) -> List[Optional[PairResult]]:
+    def align(self, cycle: Cycle, plan: schedule.Plan,
+              defer_pins: FrozenSet[str] = frozenset()) -> List[Optional[PairResult]]:
         """(1) AKAZE features of the maps that changed, (2) match, (3) rigid RANSAC + inlier
         ratio, (4) verify on the grids and refine: the plan's pairs in the worker processes,
         within the cycle's budget (a pair not reached: None); a tracked link refined and
-        verified on its new maps (with its covariance when it has none). ``defer_pins``: a pair
-        with no kept link leaves its covariance search for :meth:`complete_pins`."""
+        verified on its new maps (with its covariance when it has none). ``defer_pins``: robots
+        not placed yet, whose pairs with no kept link leave their covariance search for
+        :meth:`complete_pins`."""
         with self._lock:
             uncertain = self.ledger.uncertain()
-            defer = frozenset(k for k in plan.todo if k not in self.ledger.links) if defer_pins else frozenset()
+            defer = frozenset(k for k in plan.todo if k not in self.ledger.links
+                              and (k[0] in defer_pins or k[1] in defer_pins))
         return self._workers.align_pairs(cycle.maps, plan.todo, _as_tracks(cycle.maps, plan.track, uncertain),
                                          self.config.estimation_budget, defer)
 

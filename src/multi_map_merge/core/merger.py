@@ -71,12 +71,13 @@ class MapMerger:
     def estimate(self, defer_refinement: bool = False) -> List[str]:
         """One estimation cycle; returns human-readable events (merges, improvements).
 
-        ``defer_refinement`` (what the nodes do, which have spare time between cycles): a new
-        link's covariance search, the joint refinement of robots placed anew and the links
-        corroborated after it are left for :meth:`refresh` (or the next cycle that aligns
-        nothing): the cycle places the robots from their verified links alone,
+        ``defer_refinement`` (what the nodes do, which have spare time between cycles): a cycle
+        that aligned from features a pair of a robot not placed yet (a first placement: a team's
+        first cycle, a robot joining) leaves that pair's covariance search, the joint refinement
+        and the links corroborated after it for :meth:`refresh` (or the next cycle that has
+        nothing new to align): it places the robots from their verified links alone,
         :attr:`Placement.provisional`, sooner. The placements after that are the ones the cycle
-        gives without it."""
+        gives without it. Other cycles are the same with or without it."""
         cycle = self._cycle()
         if not cycle.maps:
             return []
@@ -84,14 +85,20 @@ class MapMerger:
         events = self._linker.verify_restored(cycle)
         # the pairs whose maps changed: kept links tracked, the others aligned by priority
         plan = self._linker.plan(cycle)
+        # robots not placed yet: what a first placement waits for is theirs
+        with self._lock:
+            first = frozenset(n for n in cycle.maps if n not in self._placer.placements) if defer_refinement \
+                else frozenset()
         # (1)-(4) features, matches, rigid RANSAC, verification: in the worker processes
-        results = self._linker.align(cycle, plan, defer_refinement)
+        results = self._linker.align(cycle, plan, first)
         with self._lock:
             if cycle.stale():
                 return events     # a prior changed meanwhile: these were gated by the old one
         # (4) keep each pair's link if verified and more reliable than the kept one (or tracked)
         self._linker.keep_planned(cycle, plan, results)
-        provisional = defer_refinement and any(r is not None and not r.tracked for r in results)
+        # a cycle that may place a robot for the first time places it first, refines it later
+        provisional = any(r is not None and not r.tracked and (a in first or b in first)
+                          for (a, b), r in zip(plan.todo, results))
         if not provisional and (self._linker.pins_pending() or self._placer.provisional()):
             return events + self._complete(cycle)    # nothing new aligned: the work left for later, now
         # (4) place every robot through its most reliable links; (6) that is its TF

@@ -94,3 +94,33 @@ def test_a_cycle_that_aligns_nothing_completes_the_deferred_work(intel):
     assert not any(p.provisional for p in m.placements().values())
     for n, (d, a) in differences(whole.placements(), m.placements()).items():
         assert d <= SAME[0] and a <= SAME[1], (n, d, math.degrees(a))
+
+
+def test_cycles_of_a_placed_team_are_the_same_with_or_without_it(intel):
+    """Once every robot is placed, a cycle is what it is without ``defer_refinement``: new map
+    versions, one map grown by half, give the same placements, none provisional."""
+    from multi_map_merge.core.grid import Grid
+    from multi_map_merge.core.schedule import SLOW_EVERY
+    ps = strip_pieces(intel, [(0, 0, 0), (3, -2, 2.0), (-4, 1, -2.5)])
+    maps = {n: g for n, (g, _) in zip('abc', ps)}
+    # b's map at first with a third of its columns not yet seen: it grows by half later, which
+    # has its links aligned again from features
+    grown = maps['b']
+    cols = np.flatnonzero((grown.data >= 0).any(axis=0))
+    young = grown.data.copy()
+    young[:, cols[0] + 2 * len(cols) // 3:] = -1
+    first = dict(maps, b=Grid(young, grown.resolution, grown.origin))
+    node, lib = fed(first), fed(first)
+    node.estimate(defer_refinement=True)
+    node.refresh(math.inf)
+    lib.estimate()
+    assert len(lib.placements()) == 3
+    for k in range(SLOW_EVERY + 1):
+        for m in (node, lib):
+            for n, g in maps.items():     # every map again, as a new version
+                m.update_map(n, Grid(g.data.copy(), g.resolution, g.origin))
+        node.estimate(defer_refinement=True)
+        lib.estimate()
+        assert not any(p.provisional for p in node.placements().values()), k
+        for n, (d, a) in differences(lib.placements(), node.placements()).items():
+            assert d <= 1e-9 and a <= 1e-9, (k, n, d, a)
