@@ -57,9 +57,8 @@ def test_a_setup_file_extends_the_environment(tmp_path):
     assert 'sourcing it failed' in why and env['KEEP'] == 'x'
 
 
-def test_its_estimation_cycles_read_from_its_real_node():
-    """Where m-explore's node is there: its cycles on two Turtlebot3 house maps (../shared/data)
-    read from its own log, as run_bench.py reads them."""
+def two_house_maps_and_the_node():
+    """Two Turtlebot3 house maps (../shared/data), or skip; skip too where m-explore's node is not there."""
     ok, why = peer.available()
     if not ok:
         pytest.skip(why)
@@ -67,6 +66,13 @@ def test_its_estimation_cycles_read_from_its_real_node():
     paths = sorted(glob.glob(os.path.join(inputs.DATA, 'tb3_house', 'tb3_*_map.yaml')))[:2]
     if len(paths) < 2:
         pytest.skip('../shared/data/tb3_house is absent')
+    return paths
+
+
+def test_its_estimation_cycles_read_from_its_real_node():
+    """Where m-explore's node is there: its cycles on two Turtlebot3 house maps (../shared/data)
+    read from its own log, as run_bench.py reads them."""
+    paths = two_house_maps_and_the_node()
     res = peer_estimate.run_estimation(paths, cycles=3, max_seconds=60.0)
     assert 'invalid' not in res, res
     assert res['cycles'] == 3 and len(res['estimate_runs_ms']) == 3
@@ -119,14 +125,8 @@ def test_the_bench_tables_say_not_installed_in_every_mexplore_cell():
 def test_its_estimation_paired_with_ours_round_after_round(tmp_path):
     """Where m-explore's node is there: ours' cold cycle and its cycle alternated (run_bench.py
     pair_mexplore), its node stopped between its cycles."""
-    ok, why = peer.available()
-    if not ok:
-        pytest.skip(why)
-    import inputs
     import run_bench
-    paths = sorted(glob.glob(os.path.join(inputs.DATA, 'tb3_house', 'tb3_*_map.yaml')))[:2]
-    if len(paths) < 2:
-        pytest.skip('../shared/data/tb3_house is absent')
+    paths = two_house_maps_and_the_node()
     res = run_bench.pair_mexplore(paths, str(tmp_path), 3)
     assert 'invalid' not in res, res
     assert len(res['ours_rounds_ms']) == len(res['mexplore_rounds_ms']) == len(res['ratios']) == 3
