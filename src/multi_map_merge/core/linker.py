@@ -116,8 +116,8 @@ class Linker:
             for k, (_, _, versions) in pending.items():
                 if k[0] not in maps or k[1] not in maps or versions != (maps[k[0]].version, maps[k[1]].version):
                     del self.ledger.unpinned[k]
-        jobs = {k: r for k, (link, r, versions) in pending.items()
-                if k[0] in maps and k[1] in maps and versions == (maps[k[0]].version, maps[k[1]].version)}
+            current = dict(self.ledger.unpinned)
+        jobs = {k: r for k, (_, r, _) in current.items()}
         changed = False
         for (a, b), r in self._workers.pin_results(maps, jobs).items():
             pa, ch = maps[a], maps[b]

@@ -215,15 +215,13 @@ class PairWorkers:
         """The covariance searches left for later (:func:`pair.pin_later`) of the accepted
         results ``jobs`` (pair -> its result, on the current versions of ``maps``), in the
         worker processes when these maps' alignments would be: pair -> the result pinned."""
-        c = self.config
         if not jobs:
             return {}
-        pool = self.pool_for(maps)
         inputs = {n: self.input(maps[n], False) for ab in jobs for n in ab}
-        if pool is None:
-            return {ab: pin_later(c, inputs[ab[0]], inputs[ab[1]], r) for ab, r in jobs.items()}
-        futures = {ab: pool.submit(run_task, pin_later, c, inputs[ab[0]], inputs[ab[1]], r) for ab, r in jobs.items()}
-        return {ab: f.result() for ab, f in futures.items()}
+        calls = [(self.config, inputs[a], inputs[b], r) for (a, b), r in jobs.items()]
+        run = self.runner(maps)
+        pinned = run(pin_later, calls) if run is not None else [pin_later(*args) for args in calls]
+        return dict(zip(jobs, pinned))
 
 
 def start_pool(workers: int = 0) -> None:
