@@ -148,9 +148,7 @@ class Session:
         self.work, self.why = work, ''
         self.node = self.feeder = None
         port = free_port()
-        env = dict(ENV, ROS_MASTER_URI='http://127.0.0.1:%d' % port, ROS_IP='127.0.0.1',
-                   ROS_HOME=os.path.join(work, 'ros_home'))
-        env.pop('ROS_HOSTNAME', None)
+        env = processes.ros_env(ENV, port, os.path.join(work, 'ros_home'))
         self.log = open(os.path.join(work, 'mexplore.log'), 'w')
         self.master = subprocess.Popen(['rosmaster', '--core', '-p', str(port)], stdout=self.log,
                                        stderr=subprocess.STDOUT, env=env, start_new_session=True)
