@@ -4,8 +4,9 @@ Runs ``rbpf_slam_replay`` (every scan; the node's update rules, ``config/rbpf_ld
 ``--config``, ``--set KEY=VALUE`` over it) on each robot of a ``make_robot_bags`` bag for each
 seed of the filter, fits each final map alone to the ground truth from its true start
 (``lab.evaluate.score_map``, as the demo report's "fit") and prints, per robot and seed, the best
-fit's offset (m) and turn (deg) from the start pose, and the map's Fitness; then per robot the
-mean and worst over seeds. At most two replays at once (``--jobs``), each in a roscore of its own.
+fit's offset (m) and turn (deg) from the start pose, and the map's Fitness (and, with
+``--set gyro_scale_learning=true``, the odometry heading's scale factor the filter learned); then
+per robot the mean and worst over seeds. At most two replays at once (``--jobs``), each in a roscore of its own.
 
     bench/bench.py own-map-turn --bag demo_output/bags/aws_house.bag \\
         --world ../shared/data/aws/small_house/map.yaml --seeds 1 2 3 4 5 --set stt=0.03
@@ -18,6 +19,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import re
 import sys
 import threading
 from typing import Dict, List, Tuple
@@ -36,6 +38,17 @@ from multi_map_merge.lab.evaluate import load_truth, score_map
 def value(text: str) -> object:
     """A --set value as YAML reads it (0.03 a float, true a bool)."""
     return yaml.safe_load(text)
+
+
+def learned_scale(log_path: str) -> str:
+    """The replay's last gyro scale line (rbpf_slam_replay: gyro scale K applied, estimate E, ...) as
+    '; gyro scale E (applied K, N steps)', or '' when it learned none."""
+    with open(log_path, errors='replace') as f:
+        found = re.findall(r'gyro scale ([\d.]+) applied, estimate ([\d.]+), from (\d+) steps', f.read())
+    if not found:
+        return ''
+    applied, estimate, steps = found[-1]
+    return '; gyro scale %s (applied %s, %s steps)' % (estimate, applied, steps)
 
 
 def main(argv: List[str] = None) -> int:
@@ -90,8 +103,9 @@ def main(argv: List[str] = None) -> int:
             res = (math.hypot(x, y), math.degrees(yaw), sc.fitness)
             with lock:
                 results[(r, s)] = res
-            print('%s seed %d: offset %.3f m turn %+.2f deg fitness %.3f (%d of %d scans processed, %.1f s CPU)'
-                  % (r, s, res[0], res[1], res[2], meta['processed'], meta['scans'], meta['cpu_s']), flush=True)
+            print('%s seed %d: offset %.3f m turn %+.2f deg fitness %.3f (%d of %d scans processed, %.1f s CPU)%s'
+                  % (r, s, res[0], res[1], res[2], meta['processed'], meta['scans'], meta['cpu_s'],
+                     learned_scale(meta['log'])), flush=True)
 
     threads = [threading.Thread(target=worker, args=(k,)) for k in range(a.jobs)]
     try:

@@ -42,6 +42,10 @@ class ScanMatchParticles : public mrpt::maps::CMultiMetricMapPDF
 	}
 
 	std::uint64_t matched = 0, odometry = 0;  //!< particle moves by scan match, by odometry
+	// the last step's scan-match turns (rad, match heading minus the particle's last heading),
+	// summed over the particles whose match was trusted, and their number
+	double stepMatchTurnSum = 0;
+	std::size_t stepMatchTurns = 0;
 
    protected:
 	void prediction_and_update_pfOptimalProposal(
@@ -71,6 +75,8 @@ class ScanMatchParticles : public mrpt::maps::CMultiMetricMapPDF
 		const bool firstScan = getNumberOfObservationsInSimplemap() == 0;
 
 		mrpt::math::CVectorDouble noise;
+		stepMatchTurnSum = 0;
+		stepMatchTurns = 0;
 		for (size_t i = 0; i < m_particles.size(); ++i)
 		{
 			auto& particle = *m_particles[i].d;
@@ -113,6 +119,8 @@ class ScanMatchParticles : public mrpt::maps::CMultiMetricMapPDF
 				mrpt::random::getRandomGenerator().drawGaussianMultivariate(noise, c);
 				drawn = CPose2D(mean[0] + noise[0], mean[1] + noise[1], mrpt::math::wrapToPi(mean[2] + noise[2]));
 				++matched;
+				stepMatchTurnSum += mrpt::math::wrapToPi(matchMean.phi() - last.phi());
+				++stepMatchTurns;
 			}
 			else
 			{
@@ -133,7 +141,7 @@ class ScanMatchParticles : public mrpt::maps::CMultiMetricMapPDF
 
 RbpfMapper::~RbpfMapper() = default;
 
-RbpfMapper::RbpfMapper(const Options& o) : options_(o)
+RbpfMapper::RbpfMapper(const Options& o) : options_(o), gyroScale_(o.gyroScale)
 {
 	// the filter runs on every scan offered to it: the update rule is ours (gmapping's)
 	auto& pf = filter_.m_options;
@@ -248,8 +256,10 @@ bool RbpfMapper::offer(double stamp, const CPose2D& odom, const mrpt::obs::CObse
 
 	mrpt::obs::CActionCollection actions;
 	mrpt::obs::CActionRobotMovement2D move;
-	// the odometry since the last processed scan, in that scan's base frame (zero for the first)
-	move.computeFromOdometry(processed_ == 0 ? CPose2D() : odom - lastOdom_, motion_);
+	// the odometry since the last processed scan, in that scan's base frame (zero for the first),
+	// its turn times the heading's scale factor learned so far (1 unless ~gyro_scale_learning)
+	const CPose2D step = processed_ == 0 ? CPose2D() : odom - lastOdom_;
+	move.computeFromOdometry(CPose2D(step.x(), step.y(), step.phi() * gyroScale_.scale()), motion_);
 	move.timestamp = scan.timestamp;
 	actions.insert(move);
 	// the scan is matched and weighed by its beams within maxUrange, as gmapping's matcher uses
@@ -265,6 +275,11 @@ bool RbpfMapper::offer(double stamp, const CPose2D& odom, const mrpt::obs::CObse
 	auto inserted = gridFrame(scan);
 	particles_->insertObservation(inserted);
 	for (auto& particle : particles_->m_particles) particle.d->mapTillNow.auxParticleFilterCleanUp();
+	// the step's turn by the scan matches (their mean over the particles whose match was
+	// trusted) against the odometry's own: a step where most particles fell back to the
+	// odometry says nothing about its scale
+	if (processed_ > 0 && 2 * particles_->stepMatchTurns >= particles_->m_particles.size())
+		gyroScale_.addStep(step.phi(), particles_->stepMatchTurnSum / static_cast<double>(particles_->stepMatchTurns));
 
 	++processed_;
 	linearSum_ = angularSum_ = 0;

@@ -13,6 +13,8 @@
 #include <mrpt/bayes/CParticleFilter.h>
 #include <mrpt/obs/CActionRobotMovement2D.h>
 
+#include "gyro_scale.h"
+
 #include <cmath>
 #include <cstdint>
 #include <memory>
@@ -43,6 +45,7 @@ struct Options
 	double matchMinGoodness = 0.7;
 	double matchSearchRadius = 0.3;	 //!< m: how far a scan point first looks for a wall of the grid
 	int seed = 0;  //!< the filter's random seed; 0: from the clock
+	GyroScaleOptions gyroScale;  //!< the odometry heading's scale factor, learned from the scan matches
 };
 
 /** A robot's map frame pose (x, y m, yaw rad) and grid, after the scans offered so far. */
@@ -71,12 +74,16 @@ class RbpfMapper
 	const mrpt::poses::CPose2D& lastProcessedOdom() const { return lastOdom_; }
 	/** The most likely particle's grid; nullptr before the first processed scan. */
 	const mrpt::maps::COccupancyGridMap2D* bestGrid() const;
+	/** The odometry heading's scale factor: the one applied to the odometry's turns, its
+	 * estimate, the steps it learned from (`~gyro_scale_learning`; factor 1 when off). */
+	const GyroScaleEstimator& gyroScale() const { return gyroScale_; }
 
    private:
 	Options options_;
 	mrpt::bayes::CParticleFilter filter_;  //!< one step per processed scan: proposal, weights, resampling
 	std::unique_ptr<ScanMatchParticles> particles_;
 	mrpt::obs::CActionRobotMovement2D::TMotionModelOptions motion_;
+	GyroScaleEstimator gyroScale_;
 	std::uint64_t received_ = 0, processed_ = 0;
 	// the update rule's state: odometry of the previous scan, distance and turn summed since
 	// the last processed scan, its stamp and odometry

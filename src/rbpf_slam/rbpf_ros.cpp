@@ -63,6 +63,16 @@ NodeSettings readSettings(ros::NodeHandle& pnh)
 	o.matchMinGoodness = number(pnh, "match_min_goodness", 0.7, false);
 	o.matchSearchRadius = number(pnh, "match_search_radius", 0.3, true);
 	o.seed = pnh.param<int>("seed", 0);
+	GyroScaleOptions& g = o.gyroScale;
+	g.enabled = pnh.param<bool>("gyro_scale_learning", g.enabled);
+	g.limit = number(pnh, "gyro_scale_limit", g.limit, true);
+	if (g.limit >= 0.5)
+	{
+		ROS_ERROR("~gyro_scale_limit = %g is not under 0.5: using 0.05", g.limit);
+		g.limit = 0.05;
+	}
+	g.window = number(pnh, "gyro_scale_window", g.window, true);
+	g.priorSigma = number(pnh, "gyro_scale_prior_sigma", g.priorSigma, true);
 	s.mapUpdateInterval = number(pnh, "map_update_interval", 5.0, false);
 	s.transformPublishPeriod = number(pnh, "transform_publish_period", 0.05, false);
 	return s;

@@ -73,6 +73,7 @@ class RbpfSlamNode
 			static_cast<unsigned long long>(mapper_->processed()),
 			static_cast<unsigned long long>(mapper_->matchedMoves()),
 			static_cast<unsigned long long>(mapper_->odometryMoves()));
+		std::printf("rbpf_slam: %s\n", mapper_->gyroScale().summary().c_str());
 		std::fflush(stdout);
 	}
 
@@ -98,9 +99,12 @@ class RbpfSlamNode
 			return;
 		}
 		const std::uint64_t frame = mapper_->received();
+		const std::uint64_t scaleUpdates = mapper_->gyroScale().updates();
 		if (!mapper_->offer(scan->header.stamp.toSec(), odom, obs)) return;
 		std::printf("update frame %llu\n", static_cast<unsigned long long>(frame));
 		std::fflush(stdout);
+		if (mapper_->gyroScale().updates() != scaleUpdates)
+			ROS_INFO("rbpf_slam: %s", mapper_->gyroScale().summary().c_str());
 
 		// map -> odom: the base's pose in the map, composed with its inverse odometry pose
 		const CPose2D mapToOdom = mapper_->bestPose() + (CPose2D() - mapper_->lastProcessedOdom());
@@ -228,7 +232,8 @@ int main(int argc, char** argv)
 				"  map_frame -> odom_frame and the service dynamic_map. Private parameters (gmapping's names):\n"
 				"  base_frame odom_frame map_frame particles delta xmin ymin xmax ymax maxRange maxUrange\n"
 				"  linearUpdate angularUpdate temporalUpdate map_update_interval transform_publish_period\n"
-				"  srr srt str stt min_std_xy min_std_yaw sigma match_min_goodness match_search_radius seed (docs/rbpf_slam.md)\n");
+				"  srr srt str stt min_std_xy min_std_yaw sigma match_min_goodness match_search_radius seed\n"
+				"  gyro_scale_learning gyro_scale_limit gyro_scale_window gyro_scale_prior_sigma (docs/rbpf_slam.md)\n");
 			return 0;
 		}
 	ros::init(argc, argv, "rbpf_slam");

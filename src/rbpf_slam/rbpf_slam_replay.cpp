@@ -194,6 +194,7 @@ int main(int argc, char** argv)
 		static_cast<unsigned long long>(mapper.received()), static_cast<unsigned long long>(mapper.processed()),
 		static_cast<unsigned long long>(noOdom), static_cast<unsigned long long>(mapper.matchedMoves()),
 		static_cast<unsigned long long>(mapper.odometryMoves()));
+	std::printf("rbpf_slam_replay: %s\n", mapper.gyroScale().summary().c_str());
 	if (snapshotEvery > 0.0)
 		std::printf("rbpf_slam_replay: %llu snapshots every %g s of bag time\n",
 					static_cast<unsigned long long>(snapshots), snapshotEvery);
