@@ -11,7 +11,8 @@ the ground truth of the bag (``make_robot_bags``' truth file): the paper's Table
 inlier RMSE of Open3D's ICP, plus coverage and wrongly occupied area) for the merged map and,
 when given, the single robot's map; every robot's transform error through the merged TF; and a
 picture: ground truth, single-robot map and merged map side by side, then the merged map with
-every robot's trajectory drawn through the merged TF. Exit status 1 when a robot was not merged.
+every robot's trajectory drawn through the merged TF. Exit status 1 when a robot was not merged,
+or was placed farther from its start truth than :data:`MAX_PLACEMENT_ERROR`.
 """
 from __future__ import annotations
 
@@ -30,6 +31,9 @@ from ..core.transforms import apply, cell_to_metric, inverse, pose_to_image, se2
 
 # the paper's Table 1 (four Turtlebot3s vs one, 117 m2 house)
 PAPER = {'multi': (0.9105, 0.076), 'single': (0.7024, 0.085)}
+#: (metres, degrees): a robot placed farther than either from its start truth (its map frame's
+#: true pose relative to the reference's) fails the demo, as an unmerged robot does
+MAX_PLACEMENT_ERROR = (0.25, 3.0)
 COLOURS = [(230, 25, 75), (60, 180, 75), (0, 130, 200), (245, 130, 48), (145, 30, 180),
            (70, 240, 240), (240, 50, 230), (128, 128, 0)]   # RGB
 
@@ -103,10 +107,32 @@ def figure(truth: Grid, panels: Sequence[Tuple[str, Optional[Grid]]],
 
 # ------------------------------------------------------------------------------ the report
 
+def placement_failures(errs: Dict[str, Optional[Tuple[float, float]]], ref: str,
+                       limits: Tuple[float, float] = MAX_PLACEMENT_ERROR,
+                       fit_errs: Optional[Dict[str, Optional[Tuple[float, float]]]] = None) -> List[str]:
+    """One line per placed robot farther than ``limits`` (metres, degrees) from its start truth.
+    ``errs``: robot -> (metres, degrees) from :func:`evaluate.transform_errors` (None: not placed,
+    reported apart); ``fit_errs``: the same against each robot's own map's best fit to the ground
+    truth, added to the line (a placement near its map's fit but far from its start: that map
+    itself sits turned or shifted against its start)."""
+    out = []
+    for r in sorted(errs):
+        e = errs[r]
+        if r == ref or e is None or (e[0] <= limits[0] and e[1] <= limits[1]):
+            continue
+        fe = (fit_errs or {}).get(r)
+        out.append('FAILED: %s placed %.3f m and %.2f degrees from its start truth (limits %.2f m, %.1f degrees)%s'
+                   % (r, e[0], e[1], limits[0], limits[1],
+                      '' if fe is None else '; %.3f m and %.2f degrees from its own map\'s best fit' % fe))
+    return out
+
+
 def report(truth_path: str, record_dir: str, single_path: Optional[str], png: Optional[str],
-           title: str = '', max_distance: float = 0.1, world_path: Optional[str] = None) -> int:
-    """Print Table 1 and the transform errors; draw the picture. 0 when every robot merged.
-    ``world_path``: the ground-truth map when not where the truth file says (a copy elsewhere)."""
+           title: str = '', max_distance: float = 0.1, world_path: Optional[str] = None,
+           limits: Tuple[float, float] = MAX_PLACEMENT_ERROR) -> int:
+    """Print Table 1 and the transform errors; draw the picture. 0 when every robot merged
+    within ``limits`` (metres, degrees) of its start truth. ``world_path``: the ground-truth map
+    when not where the truth file says (a copy elsewhere)."""
     from .evaluate import load_truth, score_map, transform_errors
     truth = load_truth(truth_path)
     gt = load_map(world_path or truth['world_path'])
@@ -184,6 +210,9 @@ def report(truth_path: str, record_dir: str, single_path: Optional[str], png: Op
             print('  %-6s error %.3f m %.2f deg%s   inlier ratio %s  agreement %s  via %s' % (
                 r, e[0], e[1], '' if fe is None else ' (fit: %.3f m %.2f deg)' % fe,
                 d.get('inlier_ratio', '-'), d.get('agreement', '-'), via))
+    for line in placement_failures(errs, ref, limits, fit_errs):
+        ok = False
+        print(line)
     if png:
         traj = {}
         if T_gt_merged is not None:
@@ -267,6 +296,9 @@ def _main(argv: Optional[List[str]] = None) -> int:
     r.add_argument('--title', default='')
     r.add_argument('--max-distance', type=float, default=0.1)
     r.add_argument('--world', help="the ground-truth map, when not at the truth file's world")
+    r.add_argument('--max-error', type=float, nargs=2, metavar=('M', 'DEG'), default=MAX_PLACEMENT_ERROR,
+                   help='a robot placed farther from its start truth fails (default: %g m %g deg)'
+                        % MAX_PLACEMENT_ERROR)
     t = sub.add_parser('team-report')
     t.add_argument('--record', required=True)
     t.add_argument('--floor-plan')
@@ -279,7 +311,7 @@ def _main(argv: Optional[List[str]] = None) -> int:
     if a.cmd == 'config':
         write_config(a.base, a.out, {k: yaml.safe_load(v) for k, v in (o.split('=', 1) for o in a.overrides)})
         return 0
-    return report(a.truth, a.record, a.single, a.png, a.title, a.max_distance, a.world)
+    return report(a.truth, a.record, a.single, a.png, a.title, a.max_distance, a.world, tuple(a.max_error))
 
 
 if __name__ == '__main__':
