@@ -91,9 +91,14 @@ def run_gmapping(exe: str, bag: str, topic: str, name: str, seed: int, config: s
     dropped = log.count('Dropping old scan')
     # rbpf_slam_replay's last line: R scans received, P processed, K without TF
     last = re.findall(r'^rbpf_slam_replay: (\d+) scans received, (\d+) processed, (\d+) without TF', log, re.M)
+    # and, with gyro_scale_learning: gyro scale K applied, estimate E, from N steps
+    scale = re.findall(r'^rbpf_slam_replay: gyro scale ([\d.]+) applied, estimate ([\d.]+), from (\d+) steps',
+                       log, re.M)
     meta = dict(head)
     if last:
         meta.update(received=int(last[-1][0]), without_tf=int(last[-1][2]))
+    if scale:
+        meta['gyro_scale'] = {'applied': scale[-1][0], 'estimate': scale[-1][1], 'steps': int(scale[-1][2])}
     meta.update({'slam': slam, 'name': name, 'bag': bag, 'topic': topic,
                  'scans': scans, 'processed': processed, 'dropped': dropped, 'rc': r['rc'],
                  'wall_s': r['wall_s'], 'cpu_s': r['cpu_s'], 'map': prefix + '.yaml', 'log': prefix + '.log'})

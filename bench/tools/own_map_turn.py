@@ -19,7 +19,6 @@ from __future__ import annotations
 import argparse
 import math
 import os
-import re
 import sys
 import threading
 from typing import Dict, List, Tuple
@@ -40,15 +39,13 @@ def value(text: str) -> object:
     return yaml.safe_load(text)
 
 
-def learned_scale(log_path: str) -> str:
-    """The replay's last gyro scale line (rbpf_slam_replay: gyro scale K applied, estimate E, ...) as
+def learned_scale(meta: Dict[str, object]) -> str:
+    """The factor the replay learned (``meta['gyro_scale']``, from its last gyro scale line) as
     '; gyro scale E (applied K, N steps)', or '' when it learned none."""
-    with open(log_path, errors='replace') as f:
-        found = re.findall(r'gyro scale ([\d.]+) applied, estimate ([\d.]+), from (\d+) steps', f.read())
-    if not found:
+    g = meta.get('gyro_scale')
+    if not g:
         return ''
-    applied, estimate, steps = found[-1]
-    return '; gyro scale %s (applied %s, %s steps)' % (estimate, applied, steps)
+    return '; gyro scale %s (applied %s, %d steps)' % (g['estimate'], g['applied'], g['steps'])
 
 
 def main(argv: List[str] = None) -> int:
@@ -105,7 +102,7 @@ def main(argv: List[str] = None) -> int:
                 results[(r, s)] = res
             print('%s seed %d: offset %.3f m turn %+.2f deg fitness %.3f (%d of %d scans processed, %.1f s CPU)%s'
                   % (r, s, res[0], res[1], res[2], meta['processed'], meta['scans'], meta['cpu_s'],
-                     learned_scale(meta['log'])), flush=True)
+                     learned_scale(meta)), flush=True)
 
     threads = [threading.Thread(target=worker, args=(k,)) for k in range(a.jobs)]
     try:
