@@ -55,7 +55,7 @@ class Graph:
         self.maps: List[tuple] = []          # (wall time, OccupancyGrid) of the merged map
         self.tf: Dict[str, tuple] = {}       # child frame -> (wall time, parent, 3x3 pose, stamp s)
         self.diagnostics: List[tuple] = []   # (wall time, DiagnosticArray)
-        self.tf_messages = 0                 # /tf messages received
+        self.tf_stamps: List[float] = []     # stamp (s) of each /tf message received, in order
         self._lock = threading.Lock()
         self.node.create_subscription(OccupancyGrid, '/map', self._on_map, LATCHED)
         self.node.create_subscription(TFMessage, '/tf', self._on_tf, 100)
@@ -71,7 +71,10 @@ class Graph:
 
     def _on_tf(self, msg):
         with self._lock:
-            self.tf_messages += 1
+            if msg.transforms:
+                st = msg.transforms[0].header.stamp
+                self.tf_stamps.append(st.sec + st.nanosec * 1e-9)
+                del self.tf_stamps[:-2000]
             for t in msg.transforms:
                 tr = t.transform
                 self.tf[t.child_frame_id] = (time.time(), t.header.frame_id,
@@ -99,6 +102,19 @@ class Graph:
         with self._lock:
             got = self.tf.get(child)
         return got[2] if got and got[0] > since and got[1] == 'map' else None
+
+    def tf_rate(self, start: float, end: float, timeout: float = 10.0) -> Optional[float]:
+        """The rate (Hz) of /tf messages stamped in [start, end) (wall seconds), counted by the
+        publisher's stamps once one stamped after ``end`` came: a busy subscriber takes messages
+        late and in bursts, so counting arrivals would give the wrong window its messages."""
+        def after_end():
+            with self._lock:
+                return bool(self.tf_stamps) and self.tf_stamps[-1] >= end
+        if not wait_until(after_end, max(0.0, end - time.time()) + timeout):
+            return None
+        with self._lock:
+            n = sum(1 for s in self.tf_stamps if start <= s < end)
+        return n / (end - start)
 
     def stamp(self, child: str, since: float = 0.0) -> Optional[float]:
         """The stamp (seconds) of the latest TF of ``child`` received after ``since``."""

@@ -164,14 +164,13 @@ def test_5_parameters_at_run_time_and_services(graph):
         req = SetParameters.Request(parameters=[Parameter(name, value=value).to_parameter_msg()])
         return call(g, SetParameters, '/map_merge/set_parameters', req).results[0]
 
-    def tf_rate_seen(seconds=3.0):
-        n0 = g.tf_messages
-        time.sleep(seconds)
-        return (g.tf_messages - n0) / seconds
-    before = tf_rate_seen()
+    t = time.time()
+    before = g.tf_rate(t, t + 3.0)
     ok = set_param('tf_rate', 4.0)
     assert ok.successful, ok.reason
-    after = tf_rate_seen()
+    t = time.time() + 0.5     # the old timer's last tick may still come
+    after = g.tf_rate(t, t + 3.0)
+    assert before is not None and after is not None, 'no /tf stamped after the window: %s, %s' % (before, after)
     assert before > 12.0 and 2.0 < after < 6.0, '/tf at %.1f Hz, then %.1f Hz after tf_rate 4' % (before, after)
     ok = set_param('merge_rate', 4.0)
     assert ok.successful, ok.reason
