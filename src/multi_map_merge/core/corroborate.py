@@ -7,14 +7,17 @@ agree a little less than that (0.95 where the gate asks 0.96) and the robot stay
 such links of one robot, to two other robots already placed relative to each other, that put it
 at the same pose are evidence no single one of them is: two look-alikes would have to be wrong
 in the same way. Those links are then accepted (``pair.PairResult.few_evidence``: refused only
-by that gate, every other gate passed).
+by that gate, every other gate passed). A robot's initial pose (``initial_poses``, relative to a
+placed robot's) is such a second source too: a link of little evidence that puts the robot where
+its initial pose does is accepted, as a look-alike would have to fall where the robot was said
+to start.
 
 Frames: placements and links are 3x3 SE(2) matrices in metres (:mod:`placement`, :mod:`links`).
 """
 from __future__ import annotations
 
 import math
-from typing import Callable, Dict, List, Set, Tuple
+from typing import Callable, Dict, List, Optional, Set, Tuple
 
 import numpy as np
 
@@ -26,12 +29,15 @@ AGREE = (0.15, math.radians(1.5))
 Key = Tuple[str, str]
 
 
-def corroborated(candidates: Dict[Key, np.ndarray], placed: Dict[str, np.ndarray]) -> Tuple[Set[Key], List[str]]:
+def corroborated(candidates: Dict[Key, np.ndarray], placed: Dict[str, np.ndarray],
+                 priors: Optional[Dict[str, np.ndarray]] = None) -> Tuple[Set[Key], List[str]]:
     """The links of ``candidates`` ((parent, child) -> pose of the child's map frame in the
     parent's, metres; links refused only for too little evidence) that corroborate each other:
     for a robot not in ``placed`` (robot -> placement in the merged frame), two of its links to
-    two placed robots whose poses of it agree within :data:`AGREE`. Returns those links and one
-    line per robot saying so."""
+    two placed robots whose poses of it agree within :data:`AGREE`, or one whose pose of it
+    agrees within :data:`AGREE` with its pose in ``priors`` (robot -> its map frame in the
+    merged frame by the initial poses). Returns those links and one line per link or pair of
+    links saying so."""
     by_robot: Dict[str, List[Tuple[Key, str, np.ndarray]]] = {}
     for (a, b), T in sorted(candidates.items()):
         for x, y, T_yx in ((b, a, T), (a, b, inverse(T))):
@@ -40,6 +46,13 @@ def corroborated(candidates: Dict[Key, np.ndarray], placed: Dict[str, np.ndarray
     keys: Set[Key] = set()
     events = []
     for x, links in sorted(by_robot.items()):
+        if priors and x in priors:
+            for k1, y1, P1 in links:
+                if within(P1, priors[x], AGREE):
+                    d, a = pose_distance(P1, priors[x])
+                    keys.add(k1)
+                    events.append('%s: link of little evidence with %s agrees with its initial pose '
+                                  '(%.3f m %.2f deg apart)' % (x, y1, d, math.degrees(a)))
         for i, (k1, y1, P1) in enumerate(links):
             for k2, y2, P2 in links[i + 1:]:
                 if y1 == y2:

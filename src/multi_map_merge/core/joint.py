@@ -12,6 +12,14 @@ warped onto the merged lattice; then ICP (:func:`refine.refine`) on that union's
 tight gate, for what a cell's lattice cannot resolve. Every wall cell of the robot that lands on
 a cell another robot knows counts once, so an overlap with more walls counts more.
 
+Near its start first: a SLAM map is most exact where its robot started (its map frame's origin,
+as gmapping, slam_toolbox and Cartographer have it) and its error grows with the path driven from
+there. The walls a robot is refined on are thinned, deterministically, to a share
+``1 / (1 + (d / START_SCALE)^2)`` of those at distance ``d`` from its origin, relative to its
+nearest wall that meets another map (:func:`near_start_first`): the walls near its start weigh
+most, every part of its overlap still counts, and a robot whose start lies far from every other
+map keeps most of its walls.
+
 Bounds: the search stays within ``SEARCH_WINDOW`` of the pose the links gave (the *anchor*,
 :attr:`placement.Placement.graph_T`), measured at the centre of the robot's walls (at its map
 frame's origin, metres away, a small turn looks like a jump); a result beyond it, one whose
@@ -53,6 +61,9 @@ ROUNDS = 3
 ICP_GATE = 2.0
 # wall cells of the robot that must land on cells another robot knows for it to be refined
 MIN_WALLS = 100
+# metres from a robot's start (its map frame's origin) at which its walls count half as much in
+# the refinement as those at its start (:func:`near_start_first`)
+START_SCALE = 2.0
 # wall cells per map used (evenly thinned): the search scores at most covariance.MAX_POINTS
 MAX_WALLS = 4000
 # placed maps a robot is refined against at most: those whose placed known boxes meet its own
@@ -270,6 +281,7 @@ def _refine_one(robots: Dict[str, Robot], n: str, anchor: np.ndarray, others: Di
     pts = r.walls[seen]
     if pts.shape[0] < MIN_WALLS:
         return anchor
+    pts = near_start_first(pts, r.W)
     wf = WallField(union, margin=0)
     if not wf.ok:
         return anchor
@@ -295,6 +307,26 @@ def _refine_one(robots: Dict[str, Robot], n: str, anchor: np.ndarray, others: Di
         if _agreement_of(robots, n, T, others, tolerance) >= before:
             return T
     return anchor
+
+
+def near_start_first(walls: np.ndarray, W: np.ndarray, scale: float = START_SCALE,
+                     least: int = MIN_WALLS) -> np.ndarray:
+    """``walls`` (N x 2 cells of a robot's grid; ``W``: its cells -> metres in its map frame)
+    thinned to a share ``(1 + (d0/scale)^2) / (1 + (d/scale)^2)`` of those at ``d`` metres from
+    the map frame's origin (``d0``: the nearest wall's), in a fixed low-discrepancy order: the
+    same walls give the same points. ``walls`` as they are when fewer than ``least`` would
+    remain."""
+    if walls.shape[0] == 0:
+        return walls
+    xy = apply(W, walls.astype(np.float64))
+    d2 = (xy * xy).sum(axis=1) / (scale * scale)
+    share = (1.0 + d2.min()) / (1.0 + d2)
+    # the golden ratio's multiples modulo 1 spread evenly over [0, 1) in any stretch of the walls
+    keep = (np.arange(walls.shape[0]) * _GOLDEN) % 1.0 < share
+    return walls[keep] if int(keep.sum()) >= least else walls
+
+
+_GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
 
 
 def _union(robots: Dict[str, Robot], poses: Dict[str, np.ndarray], lattice: Lattice,

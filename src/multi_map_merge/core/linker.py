@@ -31,7 +31,7 @@ from .links import Link
 from .pair import PairResult
 from .placer import Placer
 from .robot_map import RobotMap
-from .transforms import image_to_pose, pose_to_image
+from .transforms import image_to_pose, inverse, pose_to_image, se2
 from .workers import PairWorkers
 
 Pair = schedule.Pair
@@ -189,7 +189,8 @@ class Linker:
         poses = corroborate.poses_of(results, lambda k, r: image_to_pose(
             r.A, maps[k[0]].grid.resolution, maps[k[0]].grid.origin, maps[k[1]].grid.resolution,
             maps[k[1]].grid.origin))
-        keys, _ = corroborate.corroborated(poses, placed)
+        keys, _ = corroborate.corroborated(poses, placed, _prior_poses(self._workers.config.initial_poses, placed,
+                                                                      cycle.ref))
         for a, b in sorted(keys):
             self.keep(cycle, a, b, dataclasses.replace(results[(a, b)], accepted=True, reason=''), CORROBORATED)
         return bool(keys)
@@ -239,3 +240,18 @@ def _as_tracks(maps: Dict[str, RobotMap], poses: Dict[Pair, np.ndarray],
         pa, ch = maps[a].grid, maps[b].grid
         out[(a, b)] = (pose_to_image(T, pa.resolution, pa.origin, ch.resolution, ch.origin), (a, b) in pin)
     return out
+
+
+def _prior_poses(priors: Optional[Dict[str, List[float]]], placed: Dict[str, np.ndarray],
+                 ref: str) -> Dict[str, np.ndarray]:
+    """Per robot with an initial pose that is not placed, its map frame in the merged frame by
+    the initial poses (``priors``: robot -> [x, y, yaw] in one frame), relative to the placed
+    robot with an initial pose the reference first, else the first by name; {} with none."""
+    if not priors:
+        return {}
+    anchors = [n for n in [ref] + sorted(placed) if n in placed and n in priors]
+    if not anchors:
+        return {}
+    z = anchors[0]
+    to_merged = placed[z] @ inverse(se2(*priors[z]))
+    return {n: to_merged @ se2(*p) for n, p in priors.items() if n not in placed}

@@ -385,9 +385,9 @@ MERGER_ROWS = (
         row('joint_placement', True, BOOL, '',
           "then refine every placement against every placed map it overlaps (within 0.5 m, 9 deg of the links' pose)",
           ('then refine every placement against every placed map it overlaps at once (its wall cells against'
-           " the others' walls, within 0.5 m and 9 degrees of the pose its links gave, kept only where the "
-           'maps agree at least as well): a gmapping map bends, and its links fit only near where the robots'
-           " met; off: the links' placements as they are")),
+           " the others' walls, those near its start weighing most, within 0.5 m and 9 degrees of the pose its"
+           ' links gave, kept only where the maps agree at least as well): a gmapping map bends, and its links'
+           " fit only near where the robots met; off: the links' placements as they are")),
         row('ambiguity_margin', 0.1, _UNIT, '',
           'a second, distinct placement verifying within this agreement of the best: left unmerged; 0 = off',
           ('a pair whose second, clearly different placement (over 0.5 m or 5 degrees away) also passes '

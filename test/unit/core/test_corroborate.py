@@ -1,6 +1,6 @@
 """Links of little evidence that corroborate each other (core/corroborate.py): two links of an
-unplaced robot to two placed robots that put it at the same pose are kept; one alone, two that
-disagree, or two to the same robot are not."""
+unplaced robot to two placed robots that put it at the same pose are kept, or one that puts it
+where its initial pose does; one alone, two that disagree, or two to the same robot are not."""
 import math
 
 import numpy as np
@@ -36,6 +36,18 @@ def test_a_single_link_or_two_that_disagree_are_not():
     turned = {('a', 'x'): link('a', PLACED['a']),
               ('b', 'x'): link('b', PLACED['b'], se2(0.0, 0.0, math.radians(3.0)))}
     assert corroborate.corroborated(turned, PLACED)[0] == set()
+
+
+def test_one_link_that_agrees_with_the_robots_initial_pose_is_kept():
+    """An initial pose is the second source: one link of x that puts it where its initial pose
+    does is kept; one that does not (0.4 m or 3 degrees off), or with no initial pose, is not."""
+    cands = {('a', 'x'): link('a', PLACED['a'], se2(0.05, -0.04, math.radians(0.5)))}
+    keys, events = corroborate.corroborated(cands, PLACED, {'x': X})
+    assert keys == {('a', 'x')}
+    assert len(events) == 1 and events[0].startswith('x: link of little evidence with a agrees with its initial pose')
+    assert corroborate.corroborated(cands, PLACED, {})[0] == set()
+    for off in (se2(0.4, 0.0, 0.0), se2(0.0, 0.0, math.radians(3.0))):
+        assert corroborate.corroborated(cands, PLACED, {'x': off @ X})[0] == set()
 
 
 def test_links_between_unplaced_robots_or_of_placed_ones_say_nothing():

@@ -249,3 +249,23 @@ def test_worker_processes_give_the_poses_refined_here(monkeypatch):
             assert sum(not np.array_equal(inline[n], anchors[n]) for n in anchors) >= 2
             # some refined in the workers, some again here (a neighbour moved before them)
             assert 0 < len(here) < 5 * (3 if moving is None else 1), here
+
+
+def test_the_walls_near_a_robots_start_weigh_most():
+    """joint.near_start_first: nearly every wall within 0.3 m of the map frame's origin stays, a share 1 / (1 + (d /
+    START_SCALE)^2) of those d metres away (a fifth at 4 m, a 26th at 10 m with the 2 m scale);
+    the shares are relative to the nearest wall (a map whose walls all lie 10 m off keeps them
+    all), the same walls give the same points, and too few left gives the walls as they are."""
+    res = 0.05
+    W = np.array([[res, 0.0, -20.0], [0.0, res, -20.0], [0.0, 0.0, 1.0]])   # cell (400, 400) at the origin
+    ring = lambda d, n: np.column_stack([np.full(n, 400.0 + d / res), 400.0 + np.arange(n) % 7])  # noqa: E731
+    walls = np.vstack([ring(0.0, 1000), ring(4.0, 5000), ring(10.0, 26000)])
+    kept = joint.near_start_first(walls, W, least=10)
+    at = np.rint((kept[:, 0] - 400.0) * res)
+    assert (at == 0).sum() >= 970
+    assert abs((at == 4).sum() - 1000) < 30 and abs((at == 10).sum() - 1000) < 30, np.unique(at, return_counts=True)
+    assert np.array_equal(kept, joint.near_start_first(walls, W, least=10))
+    far = ring(10.0, 3000)
+    assert np.array_equal(joint.near_start_first(far, W, least=10), far)
+    few = np.vstack([ring(0.0, 5), ring(10.0, 200)])
+    assert np.array_equal(joint.near_start_first(few, W, least=100), few)
