@@ -85,26 +85,22 @@ def house():
 HOUSE_TEAM_DRIFT = 6.0
 
 
-def simulated_house_team(house, drift: float):
-    """Four simulated Turtlebot3s' final maps of the AWS house and where each started, as
-    ``make_robot_bags --robots 4 --seed 2 --slam-drift <drift>`` makes them (lab/simulate: the
-    robots start within 1 m of each other, headings apart, and explore apart; each map drawn at
-    its robot's drifting SLAM poses, so the maps bend): ({robot: Grid in its own map frame},
-    {robot: its start (x, y, yaw) in the house}). About 30 s."""
-    from multi_map_merge.lab import simulate as sim
-    cfg = sim.SimConfig(robots=4, seed=2)
-    cfg.slam_trans_var *= drift * drift
-    cfg.slam_rot_var *= drift * drift
-    cfg.slam_turn_var *= drift * drift
-    cfg.slam_bias *= drift
-    team, _ = sim.simulate_world(house, cfg)
-    return {r.name: r.maps[-1][1] for r in team}, {r.name: list(r.start) for r in team}
-
-
 @pytest.fixture(scope='session')
 def house_team(house):
-    """:func:`simulated_house_team` with HOUSE_TEAM_DRIFT, once a session."""
-    return simulated_house_team(house, HOUSE_TEAM_DRIFT)
+    """Four simulated Turtlebot3s' final maps of the AWS house and where each started, as
+    ``make_robot_bags --robots 4 --seed 2 --slam-drift 6`` makes them (lab/simulate: the robots
+    start within 1 m of each other, headings apart, and explore apart; each map drawn at its
+    robot's drifting SLAM poses, so the maps bend): ({robot: Grid in its own map frame},
+    {robot: its start (x, y, yaw) in the house}). About 30 s, once a session."""
+    from multi_map_merge.lab import simulate as sim
+    cfg = sim.SimConfig(robots=4, seed=2)
+    k = HOUSE_TEAM_DRIFT
+    cfg.slam_trans_var *= k * k
+    cfg.slam_rot_var *= k * k
+    cfg.slam_turn_var *= k * k
+    cfg.slam_bias *= k
+    team, _ = sim.simulate_world(house, cfg)
+    return {r.name: r.maps[-1][1] for r in team}, {r.name: list(r.start) for r in team}
 
 
 def merged(maps, **config):
